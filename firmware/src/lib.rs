@@ -1,0 +1,34 @@
+//! Firmware library of a three-axis avalanche-beacon receiver.
+//!
+//! A buried victim's beacon is a magnetic dipole pulsing at 457 kHz about once a second.
+//! This crate turns the receiver's antenna pulses and IMU samples into an estimate of the
+//! victim's position relative to the rescuer (robocentric Sum-of-Gaussians filter,
+//! Piniés, Tardós & Neira, IROS 2006) and into guidance for the rescuer.
+//!
+//! It is `no_std`, allocation-free and `f32` throughout, so the same code runs on the
+//! Cortex-M4F board and, fed by `hal-sim`, on a PC.
+//!
+//! Modules:
+//! - [`frame`]: rotations and the frame conventions of the session-log spec
+//!   (body x-forward/y-left/z-up; geographic x-north/y-west/z-up;
+//!   `R = Rz(yaw) Ry(pitch) Rx(roll)`).
+//! - [`dipole`]: the magnetic dipole field, its Jacobians, its inverse and the range
+//!   bounds implied by a field magnitude.
+#![cfg_attr(not(test), no_std)]
+#![deny(missing_docs)]
+#![cfg_attr(
+    not(test),
+    deny(clippy::unwrap_used, clippy::expect_used, clippy::panic)
+)]
+
+pub mod dipole;
+pub mod frame;
+
+/// The linear-algebra crate used in this crate's public API, re-exported so that users
+/// do not end up with two versions of nalgebra.
+pub use nalgebra;
+
+/// A 3-vector of `f32` (positions in m, fields in A/m, moments in A·m², angles in rad).
+pub type Vec3 = nalgebra::Vector3<f32>;
+/// A 3×3 matrix of `f32` (rotations, Jacobians, covariances).
+pub type Mat3 = nalgebra::Matrix3<f32>;
