@@ -186,6 +186,7 @@ mod tests {
             worst = worst.max(err);
         }
         // f32 has a 6e-8 unit roundoff; a few dozen operations stay well below 1e-5.
+        println!("field vs f64: worst relative error {worst:e}");
         assert!(worst < 1e-5, "worst relative error {worst:e}");
     }
 
@@ -252,6 +253,7 @@ mod tests {
             assert_eq!(field_matrix(&r).unwrap(), fj.d_m);
         }
         // Relative to the Jacobian's natural scale: f32 roundoff plus O(h²) truncation.
+        println!("Jacobians vs f64 central differences: ∂H/∂r {worst_r:e}, ∂H/∂m {worst_m:e}");
         assert!(worst_r < 1e-5, "∂H/∂r worst relative error {worst_r:e}");
         assert!(worst_m < 1e-5, "∂H/∂m worst relative error {worst_m:e}");
     }
@@ -278,6 +280,7 @@ mod tests {
             let back = moment_from_field(&r, &h).unwrap();
             worst = worst.max((back - m).norm() / m.norm());
         }
+        println!("inverse round trip: worst relative error {worst:e}");
         assert!(worst < 1e-5, "worst relative error {worst:e}");
     }
 
