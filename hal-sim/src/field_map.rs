@@ -26,7 +26,8 @@ const SHADES: &[u8] = b" .:-=+*#%@";
 /// Writes the map: one row per grid line (north up, west left), one shade per decade of
 /// |H| from 1e-9 A/m, then a legend.
 pub fn run(args: &Args, out: &mut impl Write) -> Result<()> {
-    if args.cells < 2 || args.cells > 400 || args.half_width_m.is_nan() || args.half_width_m <= 0.0 {
+    if args.cells < 2 || args.cells > 400 || args.half_width_m.is_nan() || args.half_width_m <= 0.0
+    {
         bail!("--cells must be in 2..=400 and --half-width-m positive");
     }
     let m = Vec3::new(args.moment[0], args.moment[1], args.moment[2]);

@@ -1,0 +1,18 @@
+//! Host-side simulator of the avalanche-beacon receiver's world and sensors.
+#![deny(missing_docs)]
+#![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used, clippy::panic))]
+
+pub mod field_map;
+pub mod inspect;
+pub mod jet;
+pub mod physics;
+pub mod receiver_config;
+pub mod replay;
+pub mod rescuer;
+pub mod routes;
+pub mod scenario;
+pub mod sensors;
+pub mod session;
+pub mod simulate;
+pub mod transmitter;
+pub mod world;

@@ -1,0 +1,144 @@
+//! The `hal-sim` binary end to end.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn hal_sim(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_hal-sim"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+fn simulate_into(dir: &Path, seed: &str) {
+    let out = hal_sim(&[
+        "simulate",
+        "--preset",
+        "paper",
+        "--seed",
+        seed,
+        "--max-duration-s",
+        "40",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+}
+
+#[test]
+fn simulate_inspect_replay() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
+    simulate_into(&a, "5");
+    simulate_into(&b, "5");
+    for f in [
+        "session.jsonl",
+        "truth.jsonl",
+        "receiver.json",
+        "scenario.json",
+    ] {
+        let (x, y) = (
+            std::fs::read(a.join(f)).unwrap(),
+            std::fs::read(b.join(f)).unwrap(),
+        );
+        assert!(
+            !x.is_empty() && x == y,
+            "{f} differs between identical runs"
+        );
+    }
+    let log = a.join("session.jsonl");
+    let out = hal_sim(&["inspect", log.to_str().unwrap()]);
+    assert!(out.status.success());
+    let summary = text(&out.stdout);
+    assert!(
+        summary.contains("duration: 40.00 s") && summary.contains("measured 100.000 Hz"),
+        "{summary}"
+    );
+    assert!(summary.contains("imu gaps (> 1.5 periods): 0"), "{summary}");
+
+    let receiver = a.join("receiver.json");
+    let out = hal_sim(&[
+        "replay",
+        log.to_str().unwrap(),
+        "--receiver",
+        receiver.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let session = hal_sim::session::read_file(&log).unwrap();
+    let lines: Vec<String> = text(&out.stdout).lines().map(String::from).collect();
+    assert_eq!(lines.len(), session.pulses().count());
+    for (line, pulse) in lines.iter().zip(session.pulses()) {
+        let v: hal_sim::replay::ReplayLine = serde_json::from_str(line).unwrap();
+        assert_eq!(v.t, pulse.t);
+        assert!(v.victims.is_empty());
+    }
+}
+
+#[test]
+fn malformed_log_exits_non_zero_naming_the_line() {
+    let tmp = tempfile::tempdir().unwrap();
+    let log = tmp.path().join("bad.jsonl");
+    std::fs::write(
+        &log,
+        concat!(
+            r#"{"type":"header","format":"arva-session","version":1,"imu_hz":100.0,"sign_ambiguous":true}"#,
+            "\n",
+            r#"{"type":"imu","t":0.0,"acc":[0,0,9.8],"gyr":[0,0,0],"mag":[20,0,-40]}"#,
+            "\n",
+            r#"{"type":"note","t":0.0,"text":"unknown types are skipped"}"#,
+            "\n",
+            r#"{"type":"pulse","t":0.5,"h":[1e-6,2e-6]}"#,
+            "\n",
+        ),
+    )
+    .unwrap();
+    for cmd in ["replay", "inspect"] {
+        let out = hal_sim(&[cmd, log.to_str().unwrap()]);
+        assert!(!out.status.success());
+        let err = text(&out.stderr);
+        assert!(err.contains("line 4:") && !err.contains("line 1 "), "{err}");
+        assert!(out.stdout.is_empty());
+    }
+    // Without the bad line the unknown type is a warning, not an error.
+    let good: String = std::fs::read_to_string(&log)
+        .unwrap()
+        .lines()
+        .take(3)
+        .map(|l| format!("{l}\n"))
+        .collect();
+    std::fs::write(&log, good).unwrap();
+    let out = hal_sim(&["inspect", log.to_str().unwrap()]);
+    assert!(out.status.success());
+    let err = text(&out.stderr);
+    assert!(err.contains("warning") && err.contains("line 3"), "{err}");
+    let out = hal_sim(&[
+        "inspect",
+        tmp.path().join("missing.jsonl").to_str().unwrap(),
+    ]);
+    assert!(!out.status.success());
+}
+
+#[test]
+fn help_explains_the_options() {
+    let out = hal_sim(&["simulate", "--help"]);
+    assert!(out.status.success());
+    let help = text(&out.stdout);
+    for word in [
+        "--preset",
+        "--seed",
+        "--count",
+        "--sigma-bkg",
+        "flux-line",
+        "zigzag",
+    ] {
+        assert!(help.contains(word), "{word} missing from:\n{help}");
+    }
+    let out = hal_sim(&["--help"]);
+    for word in ["simulate", "replay", "inspect", "field-map"] {
+        assert!(text(&out.stdout).contains(word));
+    }
+}
