@@ -2,7 +2,7 @@
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 use hal_sim::receiver_config::ReceiverConfig;
-use hal_sim::{field_map, inspect, replay, session, simulate};
+use hal_sim::{accuracy, field_map, inspect, replay, session, simulate};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
@@ -38,6 +38,9 @@ enum Command {
     /// Print the field magnitude of a beacon on a horizontal grid around it, evaluated
     /// with the firmware's own f32 dipole model (an ASCII map, strongest field darkest).
     FieldMap(field_map::Args),
+    /// Monte Carlo accuracy of the SOGs estimator over seeded scenarios (the papers'
+    /// protocol), printed as a markdown report in the papers' table layout.
+    Accuracy(accuracy::Args),
 }
 
 fn read_log(path: &Path) -> Result<session::Session> {
@@ -75,5 +78,6 @@ fn main() -> Result<()> {
             Ok(())
         }
         Command::FieldMap(args) => field_map::run(&args, &mut stdout.lock()),
+        Command::Accuracy(args) => accuracy::run(&args, &mut stdout.lock()),
     }
 }

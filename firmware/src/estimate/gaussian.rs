@@ -1,0 +1,461 @@
+//! One Gaussian of the mixture and its EKF step: prediction by augmenting the
+//! displacement, update, and composition (IROS 2006 Algorithm 1, eq. 10–15).
+
+use super::model::{I_RPY, MotionMat, MotionVec, NU, NX, StateMat, StateVec, compose, measure};
+use super::packed;
+use crate::frame::wrap_pi;
+use crate::{Mat3, Vec3};
+use nalgebra::SMatrix;
+
+/// Floats in a packed 10×10 covariance.
+pub(crate) const NP: usize = NX * (NX + 1) / 2;
+
+/// One stored Gaussian: mean, packed covariance and log-weight.
+///
+/// Size: 10 + 55 + 1 floats = 264 bytes (see `component_size` test).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Component {
+    /// Mean of the state.
+    pub x: StateVec,
+    /// Upper triangle of the state covariance.
+    pub cov: [f32; NP],
+    /// Natural log of the weight (normalized so the weights sum to 1).
+    pub log_w: f32,
+}
+
+impl Component {
+    /// A component from a mean, a full covariance (symmetrized) and a log-weight.
+    pub fn new(x: StateVec, p: &StateMat, log_w: f32) -> Self {
+        Self {
+            x,
+            cov: packed::pack(p),
+            log_w,
+        }
+    }
+
+    /// The full covariance.
+    pub fn p(&self) -> StateMat {
+        packed::unpack(&self.cov)
+    }
+
+    /// Element `(i, j)` of the covariance.
+    pub fn p_at(&self, i: usize, j: usize) -> f32 {
+        packed::get(&self.cov, NX, i, j)
+    }
+
+    /// The 3×3 covariance block starting at state index `k`.
+    pub fn block3(&self, k: usize) -> Mat3 {
+        Mat3::from_fn(|i, j| self.p_at(k + i, k + j))
+    }
+}
+
+/// A matrix that should have been positive definite was not.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct NotPositiveDefinite;
+
+/// Lower Cholesky factor `L` of a symmetric 3×3 matrix, `S = L Lᵀ`.
+pub(crate) fn cholesky3(s: &Mat3) -> Result<Mat3, NotPositiveDefinite> {
+    let mut l = Mat3::zeros();
+    for j in 0..3 {
+        let mut d = s[(j, j)];
+        for k in 0..j {
+            d -= l[(j, k)] * l[(j, k)];
+        }
+        // `!(d > 0)` also catches NaN.
+        if (d.is_nan() || d <= 0.0) || !d.is_finite() {
+            return Err(NotPositiveDefinite);
+        }
+        let ljj = libm::sqrtf(d);
+        l[(j, j)] = ljj;
+        for i in (j + 1)..3 {
+            let mut v = s[(i, j)];
+            for k in 0..j {
+                v -= l[(i, k)] * l[(j, k)];
+            }
+            l[(i, j)] = v / ljj;
+        }
+    }
+    Ok(l)
+}
+
+/// Inverse of a lower-triangular 3×3 matrix with a positive diagonal.
+pub(crate) fn lower_inverse3(l: &Mat3) -> Mat3 {
+    let (a, b, c) = (l[(0, 0)], l[(1, 1)], l[(2, 2)]);
+    let (d, e, f) = (l[(1, 0)], l[(2, 0)], l[(2, 1)]);
+    let mut m = Mat3::zeros();
+    m[(0, 0)] = 1.0 / a;
+    m[(1, 1)] = 1.0 / b;
+    m[(2, 2)] = 1.0 / c;
+    m[(1, 0)] = -d / (a * b);
+    m[(2, 1)] = -f / (b * c);
+    m[(2, 0)] = (d * f - b * e) / (a * b * c);
+    m
+}
+
+/// Squared Mahalanobis distance `vᵀ S⁻¹ v` from the Cholesky factor's inverse.
+fn mahalanobis2(l_inv: &Mat3, v: &Vec3) -> f32 {
+    (l_inv * v).norm_squared()
+}
+
+/// What the update saw for one component.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Innovation {
+    /// Squared Mahalanobis distance of the innovation with the chosen sign.
+    pub d2: f32,
+    /// Log-likelihood of the pulse (both signs, up to a constant common to all
+    /// components): IROS eq. 17 in the log domain.
+    pub log_lik: f32,
+    /// Whether the pulse was used with its sign flipped.
+    pub flipped: bool,
+}
+
+/// Why a component could not be stepped (it is then dropped from the mixture).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum ComponentFailure {
+    /// The dipole model could not be evaluated (transmitter inside the receiver).
+    Model,
+    /// `S` was not positive definite.
+    NotPositiveDefinite,
+    /// The result was not finite.
+    NonFinite,
+}
+
+/// Predict, update and compose one Gaussian (IROS Algorithm 1, one loop iteration).
+///
+/// - Prediction (eq. 10–11): the state is augmented with the displacement `u`,
+///   `P* = diag(P, Q)` (the displacement is independent of the state, `C_k = 0`).
+/// - Estimation (eq. 12–14): `h*(x*) = h(f(x, u))`, so `H* = H·[F_x F_u]` at the prior.
+///   The pulse sign is unknown: the innovation is evaluated for `+z` and `−z` and the
+///   update uses the sign with the smaller Mahalanobis distance. The likelihood used for
+///   the weight is the sum over both signs (each with probability ½), so a component
+///   far from the transmitter, where both signs fit equally, is not favoured.
+/// - Composition (eq. 15) at the updated augmented mean, with the Joseph form folded in:
+///   `P_k = F (I−KH*) P* (I−KH*)ᵀ Fᵀ + F K R Kᵀ Fᵀ`, a sum of PSD terms, so the
+///   covariance stays symmetric positive semi-definite in `f32`.
+///
+/// `r_var` is the measurement noise variance per axis (ICRA eq. 10), in (µA/m)².
+pub(crate) fn step_gaussian(
+    x: &StateVec,
+    p: &StateMat,
+    u: &MotionVec,
+    q: &MotionMat,
+    z: &Vec3,
+    r_var: f32,
+) -> Result<(StateVec, StateMat, Innovation), ComponentFailure> {
+    // Linearization point of the measurement: the prior augmented mean (eq. 14).
+    let prior = compose(x, u);
+    let meas = measure(&prior.x).map_err(|_| ComponentFailure::Model)?;
+    let ha: SMatrix<f32, 3, NX> = meas.jac * prior.fx;
+    let hb: SMatrix<f32, 3, NU> = meas.jac * prior.fu;
+    let wa: SMatrix<f32, NX, 3> = p * ha.transpose();
+    let wb: SMatrix<f32, NU, 3> = q * hb.transpose();
+    let mut s = ha * wa + hb * wb;
+    s = (s + s.transpose()) * 0.5;
+    for i in 0..3 {
+        s[(i, i)] += r_var;
+    }
+    let l = cholesky3(&s).map_err(|_| ComponentFailure::NotPositiveDefinite)?;
+    let l_inv = lower_inverse3(&l);
+    let s_inv = l_inv.transpose() * l_inv;
+
+    // Sign ambiguity: choose the sign whose innovation is closer.
+    let nu_pos = z - meas.h;
+    let nu_neg = -z - meas.h;
+    let d2_pos = mahalanobis2(&l_inv, &nu_pos);
+    let d2_neg = mahalanobis2(&l_inv, &nu_neg);
+    let (nu, d2, flipped) = if d2_neg < d2_pos {
+        (nu_neg, d2_neg, true)
+    } else {
+        (nu_pos, d2_pos, false)
+    };
+    let half_log_det = libm::logf(l[(0, 0)]) + libm::logf(l[(1, 1)]) + libm::logf(l[(2, 2)]);
+    // log(½e^{-d+/2} + ½e^{-d−/2}) up to the constant log ½ shared by all components.
+    let (lo, hi) = if d2_pos < d2_neg {
+        (d2_pos, d2_neg)
+    } else {
+        (d2_neg, d2_pos)
+    };
+    let log_lik = -0.5 * lo + libm::log1pf(libm::expf(-0.5 * (hi - lo))) - half_log_det;
+
+    // EKF update of the augmented state (Algorithm 1).
+    let ka: SMatrix<f32, NX, 3> = wa * s_inv;
+    let kb: SMatrix<f32, NU, 3> = wb * s_inv;
+    let x_post = x + ka * nu;
+    let u_post = u + kb * nu;
+
+    // Composition at the updated augmented mean (eq. 15) with the Joseph form.
+    let post = compose(&x_post, &u_post);
+    let b: SMatrix<f32, NX, 3> = post.fx * ka + post.fu * kb;
+    let a1: StateMat = post.fx - b * ha;
+    let a2: SMatrix<f32, NX, NU> = post.fu - b * hb;
+    let mut p_new = a1 * p * a1.transpose() + a2 * q * a2.transpose();
+    p_new += b * b.transpose() * r_var;
+    p_new = (p_new + p_new.transpose()) * 0.5;
+
+    let mut x_new = post.x;
+    for i in 0..3 {
+        x_new[I_RPY + i] = wrap_pi(x_new[I_RPY + i]);
+    }
+    if !(x_new.iter().all(|v| v.is_finite())
+        && p_new.iter().all(|v| v.is_finite())
+        && log_lik.is_finite())
+    {
+        return Err(ComponentFailure::NonFinite);
+    }
+    Ok((
+        x_new,
+        p_new,
+        Innovation {
+            d2,
+            log_lik,
+            flipped,
+        },
+    ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::model::tests::{random_motion, random_state};
+    use super::super::model::{I_M, I_P, I_S, K_H};
+    use super::*;
+    use nalgebra::{SMatrix as M, SVector as V};
+    use rand::{Rng, SeedableRng, rngs::SmallRng};
+
+    #[test]
+    fn component_size() {
+        // 10 mean + 55 packed covariance + 1 log-weight, all f32.
+        assert_eq!(core::mem::size_of::<Component>(), 264);
+    }
+
+    #[test]
+    fn cholesky_and_inverse() {
+        let a = Mat3::new(4.0, 2.0, 0.4, 2.0, 5.0, 1.0, 0.4, 1.0, 3.0);
+        let l = cholesky3(&a).unwrap();
+        assert!((l * l.transpose() - a).abs().max() < 1e-5);
+        assert!((lower_inverse3(&l) * l - Mat3::identity()).abs().max() < 1e-6);
+        assert_eq!(
+            cholesky3(&Mat3::new(1.0, 2.0, 0.0, 2.0, 1.0, 0.0, 0.0, 0.0, 1.0)),
+            Err(NotPositiveDefinite)
+        );
+        let mut nan = a;
+        nan[(1, 1)] = f32::NAN;
+        assert_eq!(cholesky3(&nan), Err(NotPositiveDefinite));
+    }
+
+    // ---- f64 reference of one component's predict / update / compose -------------
+    // Written independently of the f32 code path: plain f64 formulas, Jacobians by
+    // central differences in f64, the textbook augmented EKF with a 16×16 P* and the
+    // Joseph form, then F P*ᵀ Fᵀ.
+
+    type X64 = V<f64, 10>;
+    type U64 = V<f64, 6>;
+    type A64 = V<f64, 16>;
+
+    fn rot64(r: f64, p: f64, y: f64) -> M<f64, 3, 3> {
+        let (sr, cr) = r.sin_cos();
+        let (sp, cp) = p.sin_cos();
+        let (sy, cy) = y.sin_cos();
+        M::<f64, 3, 3>::new(
+            cy * cp,
+            cy * sp * sr - sy * cr,
+            cy * sp * cr + sy * sr,
+            sy * cp,
+            sy * sp * sr + cy * cr,
+            sy * sp * cr - cy * sr,
+            -sp,
+            cp * sr,
+            cp * cr,
+        )
+    }
+
+    fn rpy64(r: &M<f64, 3, 3>) -> [f64; 3] {
+        [
+            r[(2, 1)].atan2(r[(2, 2)]),
+            (-r[(2, 0)]).asin(),
+            r[(1, 0)].atan2(r[(0, 0)]),
+        ]
+    }
+
+    fn compose64(a: &A64) -> X64 {
+        let r = rot64(a[0], a[1], a[2]);
+        let dr = rot64(a[13], a[14], a[15]);
+        let psi = rpy64(&(r * dr));
+        let dp = V::<f64, 3>::new(a[10], a[11], a[12]);
+        let p = V::<f64, 3>::new(a[3], a[4], a[5]) - r * dp * a[9];
+        X64::from_column_slice(&[
+            psi[0], psi[1], psi[2], p[0], p[1], p[2], a[6], a[7], a[8], a[9],
+        ])
+    }
+
+    fn h64(x: &X64) -> V<f64, 3> {
+        let r = -V::<f64, 3>::new(x[3], x[4], x[5]);
+        let m = V::<f64, 3>::new(x[6], x[7], x[8]);
+        let n = r.norm();
+        let u = r / n;
+        let h = (u * (3.0 * m.dot(&u)) - m) / (4.0 * std::f64::consts::PI * n * n * n);
+        rot64(x[0], x[1], x[2]).transpose() * h * (K_H as f64)
+    }
+
+    fn jac_f(a: &A64) -> M<f64, 10, 16> {
+        M::<f64, 10, 16>::from_fn(|i, k| {
+            let e = 1e-6;
+            let (mut ap, mut am) = (*a, *a);
+            ap[k] += e;
+            am[k] -= e;
+            let d = compose64(&ap)[i] - compose64(&am)[i];
+            let d = if i < 3 {
+                (d + std::f64::consts::PI).rem_euclid(2.0 * std::f64::consts::PI)
+                    - std::f64::consts::PI
+            } else {
+                d
+            };
+            d / (2.0 * e)
+        })
+    }
+
+    fn jac_h(a: &A64) -> M<f64, 3, 16> {
+        let mut j = M::<f64, 3, 16>::zeros();
+        for k in 0..16 {
+            let e = 1e-6 * (1.0 + a[k].abs());
+            let (mut ap, mut am) = (*a, *a);
+            ap[k] += e;
+            am[k] -= e;
+            let d = (h64(&compose64(&ap)) - h64(&compose64(&am))) / (2.0 * e);
+            j.set_column(k, &d);
+        }
+        j
+    }
+
+    fn reference_step(
+        x: &X64,
+        p: &M<f64, 10, 10>,
+        u: &U64,
+        q: &M<f64, 6, 6>,
+        z: &V<f64, 3>,
+        r_var: f64,
+    ) -> (X64, M<f64, 10, 10>) {
+        let mut a = A64::zeros();
+        a.fixed_rows_mut::<10>(0).copy_from(x);
+        a.fixed_rows_mut::<6>(10).copy_from(u);
+        let mut ps = M::<f64, 16, 16>::zeros();
+        ps.fixed_view_mut::<10, 10>(0, 0).copy_from(p);
+        ps.fixed_view_mut::<6, 6>(10, 10).copy_from(q);
+        let h = jac_h(&a);
+        let rr = M::<f64, 3, 3>::identity() * r_var;
+        let s = h * ps * h.transpose() + rr;
+        let s_inv = s.try_inverse().unwrap();
+        let zp = h64(&compose64(&a));
+        let (nu_p, nu_n) = (z - zp, -z - zp);
+        let nu = if (nu_n.transpose() * s_inv * nu_n)[0] < (nu_p.transpose() * s_inv * nu_p)[0] {
+            nu_n
+        } else {
+            nu_p
+        };
+        let k = ps * h.transpose() * s_inv;
+        let a_post = a + k * nu;
+        let ikh = M::<f64, 16, 16>::identity() - k * h;
+        let ps_post = ikh * ps * ikh.transpose() + k * rr * k.transpose();
+        let f = jac_f(&a_post);
+        (compose64(&a_post), f * ps_post * f.transpose())
+    }
+
+    fn random_cov<const D: usize>(rng: &mut SmallRng, sig: &[f32]) -> M<f32, D, D> {
+        let a = M::<f32, D, D>::from_fn(|_, _| rng.random_range(-1.0..1.0));
+        let c = a * a.transpose() + M::<f32, D, D>::identity() * 0.5;
+        let d = M::<f32, D, D>::from_fn(|i, j| if i == j { sig[i] } else { 0.0 });
+        let dn = M::<f32, D, D>::from_fn(|i, j| if i == j { 1.0 / c[(i, i)].sqrt() } else { 0.0 });
+        d * dn * c * dn * d
+    }
+
+    pub(crate) fn random_state_cov(rng: &mut SmallRng, range: f32) -> StateMat {
+        let sp = 0.03 * range;
+        random_cov::<10>(
+            rng,
+            &[0.02, 0.02, 0.08, sp, sp, sp * 0.5, 1.5, 1.5, 1.5, 0.02],
+        )
+    }
+
+    pub(crate) fn random_motion_cov(rng: &mut SmallRng) -> MotionMat {
+        random_cov::<6>(rng, &[0.05, 0.05, 0.03, 0.01, 0.01, 0.02])
+    }
+
+    #[test]
+    fn step_matches_f64_reference() {
+        let mut rng = SmallRng::seed_from_u64(31);
+        let mut worst_x = 0.0f64;
+        let mut worst_p = 0.0f64;
+        for _ in 0..200 {
+            let x = random_state(&mut rng);
+            let range = p_of3(&x).norm();
+            let p = random_state_cov(&mut rng, range);
+            let u = random_motion(&mut rng);
+            let q = random_motion_cov(&mut rng);
+            // A pulse near the prediction, with a random sign, 3 % noise.
+            let prior = compose(&x, &u);
+            let h = measure(&prior.x).unwrap().h;
+            let sign = if rng.random::<bool>() { 1.0 } else { -1.0 };
+            let noise = Vec3::from_fn(|_, _| rng.random_range(-0.05f32..0.05)) * h.norm();
+            let z = (h + noise) * sign;
+            let r_var = (0.03 * h.norm()).powi(2) + 1e-5;
+            let (x32, p32, _) = step_gaussian(&x, &p, &u, &q, &z, r_var).unwrap();
+            let (x64, p64) = reference_step(
+                &x.cast(),
+                &p.cast(),
+                &u.cast(),
+                &q.cast(),
+                &z.cast(),
+                r_var as f64,
+            );
+            // Mean: error relative to the posterior standard deviation of each element.
+            for i in 0..10 {
+                let sd = p64[(i, i)].sqrt().max(1e-6);
+                let mut d = x32[i] as f64 - x64[i];
+                if i < 3 {
+                    d = (d + std::f64::consts::PI).rem_euclid(2.0 * std::f64::consts::PI)
+                        - std::f64::consts::PI;
+                }
+                worst_x = worst_x.max(d.abs() / sd);
+            }
+            // Covariance: error relative to sqrt(P_ii P_jj).
+            for i in 0..10 {
+                for j in 0..10 {
+                    let sc = (p64[(i, i)] * p64[(j, j)]).sqrt().max(1e-18);
+                    worst_p = worst_p.max((p32[(i, j)] as f64 - p64[(i, j)]).abs() / sc);
+                }
+            }
+        }
+        assert!(worst_x < 2e-2, "mean: worst error {worst_x:e} posterior σ");
+        assert!(worst_p < 2e-2, "cov: worst relative error {worst_p:e}");
+    }
+
+    fn p_of3(x: &StateVec) -> Vec3 {
+        Vec3::new(x[I_P], x[I_P + 1], x[I_P + 2])
+    }
+
+    #[test]
+    fn update_pulls_toward_truth_and_shrinks_covariance() {
+        let mut rng = SmallRng::seed_from_u64(32);
+        let mut truth = random_state(&mut rng);
+        truth[I_P] = 8.0;
+        truth[I_P + 1] = 3.0;
+        truth[I_P + 2] = -2.0;
+        truth[I_S] = 1.0;
+        let u = MotionVec::zeros();
+        let q = MotionMat::identity() * 1e-8;
+        let p0 = random_state_cov(&mut rng, 8.0);
+        let mut x = truth;
+        x[I_P] += 0.2;
+        x[I_M] += 0.5;
+        let z = measure(&truth).unwrap().h;
+        let (x1, p1, inn) = step_gaussian(&x, &p0, &u, &q, &z, 1e-6).unwrap();
+        assert!(!inn.flipped);
+        // The update explains the pulse better than the prior did.
+        let before = (measure(&x).unwrap().h - z).norm();
+        let after = (measure(&x1).unwrap().h - z).norm();
+        assert!(after < 0.5 * before, "{before} -> {after}");
+        assert!(p1.trace() < p0.trace());
+        let (_, _, inn2) = step_gaussian(&x, &p0, &u, &q, &(-z), 1e-6).unwrap();
+        assert!(inn2.flipped);
+        assert!((inn2.log_lik - inn.log_lik).abs() < 1e-3 * inn.log_lik.abs().max(1.0));
+    }
+}

@@ -1,0 +1,421 @@
+//! Victim-position estimators: the [`Estimator`] trait, its inputs and outputs, and the
+//! robocentric Sum-of-Gaussians filter [`SogFilter`] (Piniés, Tardós & Neira, IROS 2006;
+//! known-trajectory variant: Piniés & Tardós, ICRA 2006).
+//!
+//! # Data flow per pulse
+//! The caller hands the estimator, for every received pulse `k`:
+//! - the [`Displacement`] of the receiver since the previous pulse (translation in
+//!   `R_{k-1}` as dead-reckoned, rotation `R_{k-1} → R_k`, 6×6 covariance);
+//! - the receiver's absolute [`Attitude`] from the IMU (used only when the filter
+//!   (re)initializes: IROS III-B takes the initial misalignment between `G_1` and `R_1`);
+//! - the [`Pulse`]: the field vector in `R_k` (A/m), whose overall sign may be arbitrary.
+//!
+//! It returns a [`StepReport`], and [`Estimator::estimate`] gives the victim's position
+//! relative to the receiver in `G_k` (x north, y west, z up, origin at the receiver).
+//!
+//! # Internal units
+//! The field spans ~1e-9 … 1e-3 A/m. Internally fields are in µA/m and moments in
+//! mA·m², so that noise variances (~1e-5 (µA/m)²), moments (3 … 30) and positions (m)
+//! are all far from the ends of the `f32` range; the public API is SI.
+
+mod gaussian;
+mod init;
+mod mixture;
+mod model;
+mod packed;
+pub mod sog;
+#[cfg(test)]
+mod testsim;
+
+pub use sog::{DefaultSog, SOG_CAPACITY, SogFilter};
+
+use crate::frame::Rpy;
+use crate::{Mat3, Vec3};
+use nalgebra::SMatrix;
+
+/// A 6×6 `f32` matrix: the covariance of a [`Displacement`] (translation first, then rotation).
+pub type Mat6 = SMatrix<f32, 6, 6>;
+
+/// One received beacon pulse.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pulse {
+    /// Field strength vector in the receiver frame `R_k` (A/m); its overall sign may be
+    /// arbitrary (session-log `sign_ambiguous`).
+    pub h: Vec3,
+    /// Time of the pulse (s); must not decrease from one pulse to the next.
+    pub t: f32,
+}
+
+/// The receiver's motion between two pulses (IROS 2006 eq. 4): `x_{R_k}` seen from `R_{k-1}`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Displacement {
+    /// Translation from `R_{k-1}` to `R_k`, in `R_{k-1}` axes, as dead-reckoned (m). The
+    /// filter multiplies it by its walk-long scale state (see [`SogConfig::scale_sigma`]).
+    pub translation: Vec3,
+    /// Rotation `Ψ_{R_{k-1} R_k}` as roll, pitch, yaw (rad).
+    pub rotation: Rpy,
+    /// Covariance `Q_k` of `[translation; rotation]` (m², rad²): the per-step noise on
+    /// top of the scale error. Must be symmetric with a non-negative diagonal.
+    pub cov: Mat6,
+}
+
+impl Displacement {
+    /// No motion, no uncertainty.
+    pub fn zero() -> Self {
+        Self {
+            translation: Vec3::zeros(),
+            rotation: Rpy::zeros(),
+            cov: Mat6::zeros(),
+        }
+    }
+
+    /// A displacement with independent noise: `sigma_t` (m) per translation axis and
+    /// `sigma_r` (rad) per rotation angle.
+    pub fn with_sigmas(translation: Vec3, rotation: Rpy, sigma_t: f32, sigma_r: f32) -> Self {
+        let mut cov = Mat6::zeros();
+        for i in 0..3 {
+            cov[(i, i)] = sigma_t * sigma_t;
+            cov[(i + 3, i + 3)] = sigma_r * sigma_r;
+        }
+        Self {
+            translation,
+            rotation,
+            cov,
+        }
+    }
+}
+
+/// Absolute orientation of the receiver in the geographic frame, from the IMU.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Attitude {
+    /// Roll, pitch, yaw of `R` in `G` (rad), `R_GR = Rz(yaw) Ry(pitch) Rx(roll)`.
+    pub rpy: Rpy,
+    /// Covariance of `rpy` (rad²).
+    pub cov: Mat3,
+}
+
+impl Attitude {
+    /// An attitude with independent errors: `sigma_tilt` for roll and pitch, `sigma_yaw`
+    /// for yaw (rad).
+    pub fn with_sigmas(rpy: Rpy, sigma_tilt: f32, sigma_yaw: f32) -> Self {
+        let v = Vec3::new(
+            sigma_tilt * sigma_tilt,
+            sigma_tilt * sigma_tilt,
+            sigma_yaw * sigma_yaw,
+        );
+        Self {
+            rpy,
+            cov: Mat3::from_diagonal(&v),
+        }
+    }
+}
+
+/// The estimator's current belief about the victim.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VictimEstimate {
+    /// Mixture mean of the transmitter position in `G_k` (m, relative to the receiver;
+    /// x north, y west, z up): IROS 2006 eq. 18.
+    pub p: Vec3,
+    /// Mixture covariance of `p` (m²): IROS 2006 eq. 18.
+    pub cov: Mat3,
+    /// Transmitter moment in `G_k` (A·m²) of the mixture, with the sign of the heaviest
+    /// component (the overall sign is not observable when pulses are sign-ambiguous).
+    pub moment: Vec3,
+    /// Mean of the walk-long scale factor applied to the dead-reckoned translation.
+    pub scale: f32,
+    /// Standard deviation of that scale factor.
+    pub scale_sigma: f32,
+    /// Orientation of the receiver in `G_k` of the heaviest component (rad).
+    pub rpy: Rpy,
+    /// Number of Gaussians in the mixture.
+    pub n_components: usize,
+    /// Weight of the heaviest Gaussian (1 when the mixture has become unimodal).
+    pub max_weight: f32,
+}
+
+/// What a call to [`Estimator::step`] did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StepOutcome {
+    /// Not initialized yet, and this pulse was too weak to initialize from.
+    Waiting,
+    /// The mixture was created from this pulse (IROS III-B).
+    Initialized,
+    /// A normal predict / update / compose step (IROS Algorithm 1).
+    Updated,
+    /// Every component had been inconsistent with the pulses for several pulses (or none
+    /// survived): the mixture was rebuilt from this pulse.
+    Reinitialized,
+}
+
+/// Diagnostics of one step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepReport {
+    /// What happened.
+    pub outcome: StepOutcome,
+    /// Gaussians in the mixture after the step.
+    pub n_components: usize,
+    /// Smallest innovation Mahalanobis distance² over the components (0 when not updated).
+    pub best_d2: f32,
+    /// Components removed for negligible weight.
+    pub pruned: u16,
+    /// Pairs of near-duplicate components merged.
+    pub merged: u16,
+    /// Components split because the measurement is too nonlinear over them.
+    pub split: u16,
+    /// Components removed because their model could not be evaluated (e.g. the
+    /// transmitter hypothesis fell inside the receiver's own antenna).
+    pub dropped: u16,
+}
+
+impl StepReport {
+    fn new(outcome: StepOutcome, n_components: usize) -> Self {
+        Self {
+            outcome,
+            n_components,
+            best_d2: 0.0,
+            pruned: 0,
+            merged: 0,
+            split: 0,
+            dropped: 0,
+        }
+    }
+}
+
+/// Why an input was refused. A refused input leaves the estimator's state unchanged.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum EstimateError {
+    /// An input contained NaN or an infinity.
+    NonFinite,
+    /// The pulse's field vector was exactly zero.
+    ZeroField,
+    /// A field component reached the receiver's saturation level.
+    Saturated,
+    /// A covariance had a negative variance, was not symmetric, or had a correlation
+    /// outside [-1, 1].
+    InvalidCovariance,
+    /// The pulse's time was earlier than the previous pulse's.
+    TimeWentBackwards,
+    /// The configuration is inconsistent (see [`SogConfig::validate`]).
+    InvalidConfig,
+    /// A matrix that must be positive definite was not (typed error of the Cholesky
+    /// factorization of the innovation covariance `S`).
+    NotPositiveDefinite,
+}
+
+/// Which problem the filter solves.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Mode {
+    /// Full robocentric SLAM (IROS 2006): orientation, transmitter and scale are estimated
+    /// from noisy displacements.
+    Robocentric,
+    /// Known receiver trajectory (ICRA 2006): displacements and the initial attitude are
+    /// taken as exact (their covariances and the scale uncertainty are ignored), so the
+    /// same filter only estimates `[p_T, m]`.
+    KnownTrajectory,
+}
+
+/// Configuration of the SOG filter. [`SogConfig::default`] is the papers' Monte Carlo
+/// setting with a calibrated step length.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SogConfig {
+    /// Robocentric or known trajectory.
+    pub mode: Mode,
+    /// Smallest transmitter moment magnitude (A·m²).
+    pub m_min: f32,
+    /// Largest transmitter moment magnitude (A·m²).
+    pub m_max: f32,
+    /// Shallowest burial depth below the snow surface (m).
+    pub depth_min: f32,
+    /// Deepest burial depth below the snow surface (m).
+    pub depth_max: f32,
+    /// Height of the receiver above the snow surface (m).
+    pub receiver_height: f32,
+    /// Background noise per field component (A/m), ICRA 2006 eq. 10.
+    pub sigma_bkg: f32,
+    /// Sensor noise proportional to |H|, ICRA 2006 eq. 10.
+    pub k_sen: f32,
+    /// Standard deviation of the walk-long scale factor multiplying the dead-reckoned
+    /// translation: ≈ 0.02 with a calibrated step length, ≈ 0.10 without.
+    pub scale_sigma: f32,
+    /// Field component magnitude (A/m) at or above which a pulse counts as saturated.
+    pub h_saturation: f32,
+    /// Smallest |H| / `sigma_bkg` of a pulse that may initialize the mixture.
+    pub init_snr: f32,
+    /// Fraction of the capacity filled at initialization (the rest is room for splits).
+    pub init_fill: f32,
+    /// Every point of the initial region lies within this squared Mahalanobis distance
+    /// (3 dof) of some component (IROS III-B, ICRA V-C): the corner of each cell sits
+    /// exactly on it. The 95 % bound would be 7.81; the default 1.2 makes neighbours
+    /// overlap generously (σ ≈ 1.6 × the cell's half-size), which the convergence tests
+    /// found more robust and better calibrated.
+    pub init_chi2: f32,
+    /// Components whose normalized weight falls below this are removed.
+    pub prune_weight: f32,
+    /// Two components closer than this (squared Mahalanobis distance of position and
+    /// moment, with the sum of their covariances) are merged.
+    pub merge_d2: f32,
+    /// A component is split in three when its largest position standard deviation
+    /// exceeds this fraction of its range (the dipole field is then too nonlinear over it).
+    pub split_ratio: f32,
+    /// Components with less weight than this are never split.
+    pub split_min_weight: f32,
+    /// Innovation gate (squared Mahalanobis, 3 dof) above which a component is
+    /// inconsistent with a pulse.
+    pub divergence_d2: f32,
+    /// Consecutive pulses on which every component must be inconsistent before the
+    /// mixture is rebuilt.
+    pub divergence_pulses: u8,
+}
+
+impl Default for SogConfig {
+    fn default() -> Self {
+        Self {
+            mode: Mode::Robocentric,
+            m_min: 3e-3,
+            m_max: 3e-2,
+            depth_min: 0.0,
+            depth_max: 5.0,
+            receiver_height: 1.0,
+            sigma_bkg: 2.59e-9,
+            k_sen: 0.03,
+            scale_sigma: SCALE_SIGMA_CALIBRATED,
+            h_saturation: 1.0,
+            init_snr: 10.0,
+            init_fill: 0.6,
+            init_chi2: 1.2,
+            prune_weight: 1e-6,
+            merge_d2: 0.3,
+            split_ratio: 0.12,
+            split_min_weight: 1e-3,
+            divergence_d2: 16.27,
+            divergence_pulses: 5,
+        }
+    }
+}
+
+/// Scale-factor standard deviation with a calibrated step length (session-log `pdr`).
+pub const SCALE_SIGMA_CALIBRATED: f32 = 0.02;
+/// Scale-factor standard deviation without step-length calibration.
+pub const SCALE_SIGMA_UNCALIBRATED: f32 = 0.10;
+
+impl SogConfig {
+    /// The known-trajectory (ICRA 2006) setting.
+    pub fn known_trajectory() -> Self {
+        Self {
+            mode: Mode::KnownTrajectory,
+            scale_sigma: 0.0,
+            ..Self::default()
+        }
+    }
+
+    /// Sets the scale prior from whether the step length was calibrated.
+    pub fn with_calibrated_step(self, calibrated: bool) -> Self {
+        Self {
+            scale_sigma: if calibrated {
+                SCALE_SIGMA_CALIBRATED
+            } else {
+                SCALE_SIGMA_UNCALIBRATED
+            },
+            ..self
+        }
+    }
+
+    /// Checks that every field is finite and within its meaningful range.
+    pub fn validate(&self) -> Result<(), EstimateError> {
+        let finite = [
+            self.m_min,
+            self.m_max,
+            self.depth_min,
+            self.depth_max,
+            self.receiver_height,
+            self.sigma_bkg,
+            self.k_sen,
+            self.scale_sigma,
+            self.h_saturation,
+            self.init_snr,
+            self.init_fill,
+            self.init_chi2,
+            self.prune_weight,
+            self.merge_d2,
+            self.split_ratio,
+            self.split_min_weight,
+            self.divergence_d2,
+        ];
+        if !finite.iter().all(|v| v.is_finite()) {
+            return Err(EstimateError::InvalidConfig);
+        }
+        let ok = self.m_min > 0.0
+            && self.m_max >= self.m_min
+            && self.depth_min >= 0.0
+            && self.depth_max >= self.depth_min
+            && self.receiver_height >= 0.0
+            && self.sigma_bkg > 0.0
+            && self.k_sen >= 0.0
+            && self.scale_sigma >= 0.0
+            && self.scale_sigma < 0.5
+            && self.h_saturation > 0.0
+            && self.init_snr >= 0.0
+            && self.init_fill > 0.0
+            && self.init_fill <= 1.0
+            && self.init_chi2 > 0.0
+            && (0.0..0.5).contains(&self.prune_weight)
+            && self.merge_d2 >= 0.0
+            && self.split_ratio > 0.0
+            && self.split_min_weight >= 0.0
+            && self.divergence_d2 > 0.0
+            && self.divergence_pulses > 0;
+        if ok {
+            Ok(())
+        } else {
+            Err(EstimateError::InvalidConfig)
+        }
+    }
+}
+
+/// A victim-position estimator fed one pulse at a time.
+pub trait Estimator {
+    /// Processes one pulse: initializes from it when not yet initialized (using
+    /// `attitude`; `motion` is then ignored), otherwise predicts with `motion`, updates
+    /// with `pulse` and composes into the new frame `G_k`. A refused input returns an
+    /// error and leaves the state unchanged.
+    fn step(
+        &mut self,
+        motion: &Displacement,
+        attitude: &Attitude,
+        pulse: &Pulse,
+    ) -> Result<StepReport, EstimateError>;
+
+    /// The current estimate, or `None` before initialization.
+    fn estimate(&self) -> Option<VictimEstimate>;
+
+    /// Forgets everything; the next usable pulse initializes again.
+    fn reset(&mut self);
+
+    /// Whether the estimator holds a belief (has been initialized).
+    fn is_initialized(&self) -> bool;
+}
+
+/// Checks a covariance's necessary conditions for being positive semi-definite: finite,
+/// symmetric (relative 1e-4), non-negative diagonal, correlations within [-1, 1].
+pub(crate) fn check_covariance<const D: usize>(
+    c: &SMatrix<f32, D, D>,
+) -> Result<(), EstimateError> {
+    if !c.iter().all(|v| v.is_finite()) {
+        return Err(EstimateError::NonFinite);
+    }
+    for i in 0..D {
+        if c[(i, i)] < 0.0 {
+            return Err(EstimateError::InvalidCovariance);
+        }
+        for j in (i + 1)..D {
+            let bound = libm::sqrtf(c[(i, i)] * c[(j, j)]);
+            let (a, b) = (c[(i, j)], c[(j, i)]);
+            if libm::fabsf(a - b) > 1e-4 * bound + f32::MIN_POSITIVE
+                || libm::fabsf(a) > bound * (1.0 + 1e-4) + f32::MIN_POSITIVE
+            {
+                return Err(EstimateError::InvalidCovariance);
+            }
+        }
+    }
+    Ok(())
+}
