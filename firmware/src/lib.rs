@@ -14,6 +14,13 @@
 //!   `R = Rz(yaw) Ry(pitch) Rx(roll)`).
 //! - [`dipole`]: the magnetic dipole field, its Jacobians, its inverse and the range
 //!   bounds implied by a field magnitude.
+//! - [`drivers`]: chip drivers generic over `embedded-hal` 1.0 (the antenna ADC).
+//! - [`frontend`]: antenna pulse DSP — detection, I/Q demodulation, field vector per
+//!   pulse, transmitter separation.
+//! - [`motion`]: attitude filter, step detection and pedestrian dead reckoning (Kleiner et
+//!   al. eq. 1–3), the displacement between pulses with its covariance (IROS 2006 eq. 4).
+//! - [`estimate`]: the [`estimate::Estimator`] trait and the robocentric Sum-of-Gaussians
+//!   filter [`estimate::SogFilter`] (IROS 2006 Algorithm 1; ICRA 2006 known trajectory).
 #![cfg_attr(not(test), no_std)]
 #![deny(missing_docs)]
 #![cfg_attr(
@@ -22,7 +29,11 @@
 )]
 
 pub mod dipole;
+pub mod drivers;
+pub mod estimate;
 pub mod frame;
+pub mod frontend;
+pub mod motion;
 
 /// The linear-algebra crate used in this crate's public API, re-exported so that users
 /// do not end up with two versions of nalgebra.

@@ -1,0 +1,9 @@
+//! Drivers for the receiver's chips, generic over the `embedded-hal` 1.0 traits.
+//!
+//! They run unchanged on the board (STM32 HAL types) and on the PC, where `hal-sim`
+//! implements the same traits with emulated chips.
+//!
+//! - [`ads131m04`]: TI ADS131M04, the 4-channel simultaneous-sampling 24-bit ΔΣ ADC that
+//!   digitises the three antenna coils' intermediate-frequency signals.
+
+pub mod ads131m04;

@@ -1,0 +1,367 @@
+//! Antenna pulse DSP: from the ADC's intermediate-frequency samples to one field vector
+//! per transmitter pulse.
+//!
+//! # Analog chain
+//! Three orthogonal ferrite-rod coils (x forward, y left, z up: the body frame R of the
+//! session-log spec) each feed a tuned low-noise amplifier at 457 kHz, then a mixer
+//! with a common 455 kHz local oscillator (the classic AM IF, so ceramic filters fit)
+//! and a band-pass around the 2 kHz difference. The three IF signals reach channels
+//! 0–2 of a TI ADS131M04 ([`crate::drivers::ads131m04`]) whose modulators sample
+//! simultaneously at 8 kSPS (8.192 MHz clock, OSR 512, high-resolution mode), so the
+//! coils' relative phases — the field vector's relative signs — survive to the DSP.
+//! The IF, 2 kHz, is a quarter of the sample rate: the digital local oscillator is the
+//! sequence 1, −j, −1, j, and a carrier off by the standard's ±80 Hz lands at
+//! 1920–2080 Hz, far from DC and Nyquist. Because the LO sits below the carrier, the
+//! IF offset has the carrier offset's sign.
+//!
+//! # Processing (per sample, per 2 ms block, per pulse)
+//! 1. Each sample is mixed with the IF local oscillator and summed over a 16-sample
+//!    (2 ms) block: one complex phasor per coil and block, scaled so its modulus is the
+//!    IF amplitude, then calibrated to A/m ([`Calibration`]). An 80 Hz offset turns the
+//!    phasor by 58° per block, which costs only 4 % of amplitude inside a block; the
+//!    loss is undone once the offset is known.
+//! 2. The three coils' block energies are summed; a 32 ms sliding mean is compared with
+//!    an adaptive noise floor (a mean of the per-block energy tracked with a 0.5 s time
+//!    constant, fed only from blocks at least a window away from any pulse so pulses
+//!    never leak into it). Above `k_on`× the floor a pulse starts, below `k_off`× it
+//!    ends.
+//! 3. At the pulse's end its blocks are taken from a ring buffer: edges are placed where
+//!    the energy crosses halfway between floor and pulse level; pulses shorter than
+//!    50 ms are dropped (the standard's on-time is ≥ 70 ms). The timestamp is the
+//!    pulse centre.
+//! 4. The carrier offset is the peak of the coils' summed periodogram of the block
+//!    phasors (zero-padded FFT of ≤ 512 points, refined by a parabola and a
+//!    golden-section search): this is the maximum-likelihood estimate and, once
+//!    removed, the whole pulse is integrated coherently.
+//! 5. The three complex amplitudes are rotated onto their common phase
+//!    `φ = ½ arg Σ c_i²`; the real parts are the field vector with correct relative
+//!    signs, the overall sign unknown (reported with the largest component positive).
+//! 6. A single transmitter leaves only noise after the fit of one constant-envelope
+//!    carrier and almost nothing in quadrature. Two overlapping transmitters break one
+//!    or the other, and the pulse is reported as [`PulseMeasurement::Overlap`] instead
+//!    of a wrong vector.
+//! 7. A [`TransmitterTracker`] attributes each pulse to a transmitter by its period
+//!    (1000 ± 300 ms) and carrier offset: the pulse's `src`.
+//!
+//! # Cost and memory
+//! Per sample: 6 multiply-adds. Per block (500 Hz): ~60 operations. Per pulse: three
+//! FFTs of ≤ 512 points (64–128 points for a 70–100 ms pulse) and ~12 passes over the
+//! pulse's blocks. [`Frontend`] holds ≈ 14 KB: a 512 ms ring of block phasors
+//! ([`RING_BLOCKS`]), the FFT buffer and its power spectrum ([`MAX_FFT`]).
+
+mod analysis;
+mod calibration;
+mod complex;
+mod config;
+mod fft;
+mod pulse;
+mod tracker;
+
+#[cfg(test)]
+mod tests;
+
+pub use calibration::Calibration;
+pub use complex::C32;
+pub use config::{FrontendConfig, FrontendError};
+pub use pulse::{Pulse, PulseMeasurement};
+pub use tracker::{MAX_TRACKS, PERIOD_MAX_S, PERIOD_MIN_S, Track, TransmitterTracker};
+
+use analysis::{BlockView, analyse};
+use core::f32::consts::PI;
+
+/// Longest block (samples) a configuration may use.
+pub const MAX_BLOCK: usize = 64;
+/// Blocks kept in the ring buffer (512 ms at 2 ms blocks): the longest pulse, or pair
+/// of overlapping pulses, that can be analysed.
+pub const RING_BLOCKS: usize = 256;
+/// Largest FFT (points) of the carrier search; twice [`RING_BLOCKS`] for zero padding.
+pub const MAX_FFT: usize = 2 * RING_BLOCKS;
+
+/// Counters of what the front end has seen.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct FrontendStats {
+    /// Pulses reported (any measurement).
+    pub pulses: u32,
+    /// Detections discarded as shorter than the minimum pulse.
+    pub rejected_short: u32,
+    /// Pulses reported as overlapping.
+    pub overlaps: u32,
+    /// Pulses reported as saturated.
+    pub saturated: u32,
+    /// Pulses reported as truncated.
+    pub truncated: u32,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum State {
+    /// Tracking the floor, waiting for a pulse.
+    Idle,
+    /// In a pulse first detected at this absolute block.
+    InPulse { detected: u64 },
+}
+
+/// The pulse front end: feed it coil samples, get [`Pulse`]s.
+#[derive(Debug, Clone)]
+pub struct Frontend {
+    cfg: FrontendConfig,
+    lo: [C32; MAX_BLOCK],
+    cal: [C32; 3],
+    acc: [C32; 3],
+    in_block: usize,
+    block_saturated: bool,
+    ring: [[C32; 3]; RING_BLOCKS],
+    energy: [f32; RING_BLOCKS],
+    saturated: [bool; RING_BLOCKS],
+    blocks: u64,
+    floor: f32,
+    alpha: f32,
+    state: State,
+    quiet_from: u64,
+    fft: [C32; MAX_FFT],
+    power: [f32; MAX_FFT],
+    tracker: TransmitterTracker,
+    stats: FrontendStats,
+}
+
+impl Frontend {
+    /// A front end with configuration `cfg` (checked with [`FrontendConfig::validate`]).
+    pub fn new(cfg: FrontendConfig) -> Result<Self, FrontendError> {
+        cfg.validate()?;
+        let l = cfg.block_len;
+        let mut lo = [C32::ZERO; MAX_BLOCK];
+        // Scaled by 2/L so that a block phasor's modulus is the IF amplitude.
+        for (n, z) in lo.iter_mut().take(l).enumerate() {
+            *z = C32::cis(-2.0 * PI * cfg.if_hz * n as f32 / cfg.sample_rate_hz)
+                .scale(2.0 / l as f32);
+        }
+        let c = &cfg.calibration;
+        let cal = [0, 1, 2].map(|i| {
+            let g = c.gain_a_per_m_per_v.get(i).copied().unwrap_or(1.0);
+            let ph = c.phase_rad.get(i).copied().unwrap_or(0.0);
+            // A lag of φ shows as e^{−jφ} on the phasor: undo it.
+            C32::cis(ph).scale(g)
+        });
+        let alpha = (cfg.block_s() / cfg.floor_time_constant_s).min(1.0);
+        Ok(Frontend {
+            cfg,
+            lo,
+            cal,
+            acc: [C32::ZERO; 3],
+            in_block: 0,
+            block_saturated: false,
+            ring: [[C32::ZERO; 3]; RING_BLOCKS],
+            energy: [0.0; RING_BLOCKS],
+            saturated: [false; RING_BLOCKS],
+            blocks: 0,
+            floor: 0.0,
+            alpha,
+            state: State::Idle,
+            quiet_from: 0,
+            fft: [C32::ZERO; MAX_FFT],
+            power: [0.0; MAX_FFT],
+            tracker: TransmitterTracker::new(),
+            stats: FrontendStats::default(),
+        })
+    }
+
+    /// The configuration in use.
+    pub fn config(&self) -> &FrontendConfig {
+        &self.cfg
+    }
+
+    /// The current noise floor: mean energy of one block over the three coils ((A/m)²).
+    pub fn noise_floor(&self) -> f32 {
+        self.floor
+    }
+
+    /// Per-component standard deviation (A/m) a pulse of `duration_s` would have at the
+    /// current noise floor.
+    pub fn sigma_for_pulse(&self, duration_s: f32) -> f32 {
+        let n = (duration_s / self.cfg.block_s()).max(1.0);
+        libm::sqrtf(self.floor / (6.0 * n))
+    }
+
+    /// Counters.
+    pub fn stats(&self) -> FrontendStats {
+        self.stats
+    }
+
+    /// The transmitter tracker.
+    pub fn tracker(&self) -> &TransmitterTracker {
+        &self.tracker
+    }
+
+    /// Samples consumed so far.
+    pub fn samples(&self) -> u64 {
+        self.blocks * self.cfg.block_len as u64 + self.in_block as u64
+    }
+
+    /// Feed one simultaneous sample of the three coils (V at the ADC) and whether any of
+    /// them clipped. Returns a pulse when one has just ended. A non-finite sample is
+    /// refused with [`FrontendError::NonFiniteSample`] and not consumed.
+    pub fn push(&mut self, volts: [f32; 3], clipped: bool) -> Result<Option<Pulse>, FrontendError> {
+        if !volts.iter().all(|v| v.is_finite()) {
+            return Err(FrontendError::NonFiniteSample);
+        }
+        let lo = self.lo.get(self.in_block).copied().unwrap_or(C32::ZERO);
+        for ((a, v), off) in self
+            .acc
+            .iter_mut()
+            .zip(volts)
+            .zip(self.cfg.calibration.offset_v)
+        {
+            *a += lo.scale(v - off);
+        }
+        self.block_saturated |= clipped;
+        self.in_block += 1;
+        if self.in_block < self.cfg.block_len {
+            return Ok(None);
+        }
+        let mut p = [C32::ZERO; 3];
+        for ((out, a), k) in p.iter_mut().zip(self.acc).zip(self.cal) {
+            *out = a * k;
+        }
+        let sat = self.block_saturated;
+        self.acc = [C32::ZERO; 3];
+        self.in_block = 0;
+        self.block_saturated = false;
+        Ok(self.on_block(p, sat))
+    }
+
+    fn ring_index(b: u64) -> usize {
+        (b % RING_BLOCKS as u64) as usize
+    }
+
+    fn on_block(&mut self, p: [C32; 3], sat: bool) -> Option<Pulse> {
+        let e: f32 = p.iter().map(|z| z.norm_sqr()).sum();
+        // Guard the floor and statistics against an absurd (overflowing) block.
+        let e = if e.is_finite() { e } else { f32::MAX };
+        let b = self.blocks;
+        let i = Self::ring_index(b);
+        if let (Some(r), Some(en), Some(s)) = (
+            self.ring.get_mut(i),
+            self.energy.get_mut(i),
+            self.saturated.get_mut(i),
+        ) {
+            *r = p;
+            *en = e;
+            *s = sat;
+        }
+        self.blocks += 1;
+        let warm = self.cfg.warmup_blocks.max(self.cfg.detect_blocks) as u64;
+        if self.blocks <= warm {
+            // Seed the floor with the plain mean of the first blocks.
+            self.floor += (e - self.floor) / self.blocks as f32;
+            self.quiet_from = self.blocks;
+            return None;
+        }
+        let w = self.cfg.detect_blocks as u64;
+        let window: f32 = (0..w).map(|k| self.energy_at(b - k)).sum::<f32>() / w as f32;
+        match self.state {
+            State::Idle => {
+                if window > self.cfg.k_on * self.floor {
+                    self.state = State::InPulse { detected: b };
+                } else if b >= self.quiet_from + w {
+                    // Update from the block one window back: a pulse now being detected
+                    // cannot have leaked into it. Clamp single outliers (EMI clicks).
+                    let old = self
+                        .energy_at(b - w)
+                        .min(3.0 * self.floor.max(f32::MIN_POSITIVE));
+                    self.floor += self.alpha * (old - self.floor);
+                }
+                None
+            }
+            State::InPulse { detected } => {
+                // The pulse began at most one window before its detection; keep a margin.
+                let first = detected
+                    .saturating_sub(w + 4)
+                    .max(self.blocks.saturating_sub(RING_BLOCKS as u64));
+                let len = (b + 1 - first) as usize;
+                if len >= RING_BLOCKS - 1 {
+                    // A pulse this long is a continuous interferer: report it and take
+                    // its level as the new floor so detection recovers.
+                    self.state = State::Idle;
+                    self.quiet_from = b + 1;
+                    self.floor = self.floor.max(window);
+                    self.stats.truncated += 1;
+                    self.stats.pulses += 1;
+                    let t0 = first * self.cfg.block_len as u64;
+                    return Some(Pulse {
+                        t_s: self.seconds(t0) + 0.5 * len as f32 * self.cfg.block_s(),
+                        start_sample: t0,
+                        duration_s: len as f32 * self.cfg.block_s(),
+                        carrier_offset_hz: 0.0,
+                        sigma_a_per_m: 0.0,
+                        residual_fraction: 0.0,
+                        quadrature_fraction: 0.0,
+                        src: None,
+                        measurement: PulseMeasurement::Truncated,
+                    });
+                }
+                if window < self.cfg.k_off * self.floor {
+                    self.state = State::Idle;
+                    self.quiet_from = b + 1;
+                    return self.finish(first, len);
+                }
+                None
+            }
+        }
+    }
+
+    fn energy_at(&self, b: u64) -> f32 {
+        self.energy.get(Self::ring_index(b)).copied().unwrap_or(0.0)
+    }
+
+    fn seconds(&self, sample: u64) -> f32 {
+        // f64 keeps the division exact over long sessions; it runs once per pulse.
+        let fs = self.cfg.sample_rate_hz as f64;
+        (sample as f64 / fs) as f32
+    }
+
+    /// Analyse blocks `first .. first + len` after a pulse ended.
+    fn finish(&mut self, first: u64, len: usize) -> Option<Pulse> {
+        let view = BlockView {
+            blocks: &self.ring,
+            energy: &self.energy,
+            saturated: &self.saturated,
+            first: Self::ring_index(first),
+            len,
+        };
+        let a = analyse(&view, self.floor, &self.cfg, &mut self.fft, &mut self.power)?;
+        let duration_s = a.len as f32 * self.cfg.block_s();
+        if duration_s < self.cfg.min_pulse_s {
+            self.stats.rejected_short += 1;
+            return None;
+        }
+        let l = self.cfg.block_len as u64;
+        let start_sample = (first + a.start as u64) * l;
+        let t_s = self.seconds(start_sample) + 0.5 * duration_s;
+        let measurement = if a.saturated {
+            self.stats.saturated += 1;
+            PulseMeasurement::Saturated
+        } else if a.overlap {
+            self.stats.overlaps += 1;
+            PulseMeasurement::Overlap
+        } else {
+            PulseMeasurement::Field(a.h)
+        };
+        // Overlapped pulses have no trustworthy timing or carrier for the tracker.
+        let src = if a.overlap {
+            None
+        } else {
+            self.tracker.assign(t_s, a.offset_hz)
+        };
+        self.stats.pulses += 1;
+        Some(Pulse {
+            t_s,
+            start_sample,
+            duration_s,
+            carrier_offset_hz: a.offset_hz,
+            sigma_a_per_m: a.sigma,
+            residual_fraction: a.residual_fraction,
+            quadrature_fraction: a.quadrature_fraction,
+            src,
+            measurement,
+        })
+    }
+}

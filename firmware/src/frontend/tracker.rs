@@ -1,0 +1,213 @@
+//! Separation of several transmitters by their pulse periods and carrier offsets.
+//!
+//! EN 300 718 lets each beacon pulse with a period of 1000 ± 300 ms and a carrier within
+//! ±80 Hz of 457 kHz; both are stable for a given unit over a search. Each track keeps
+//! the time of its last pulse, its period once two pulses are seen, and its carrier
+//! offset; a new pulse goes to the track whose predicted pulse time (allowing a few
+//! missed pulses) and carrier are closest, within gates, or starts a new track.
+
+use heapless::Vec as HVec;
+
+/// Tracks kept at once (transmitters separable at the same time). Four covers the
+/// multiple-burial scenarios of the standard's test procedures.
+pub const MAX_TRACKS: usize = 4;
+
+/// Shortest period of the standard (s).
+pub const PERIOD_MIN_S: f32 = 0.7;
+/// Longest period of the standard (s).
+pub const PERIOD_MAX_S: f32 = 1.3;
+/// Largest timing error (s) accepted against a track's predicted pulse time.
+const TIME_GATE_S: f32 = 0.06;
+/// Largest carrier difference (Hz) accepted against a track (covers the offset
+/// estimate's noise near the floor).
+const FREQ_GATE_HZ: f32 = 15.0;
+/// Pulses a track may miss and still be matched.
+const MAX_MISSED: u32 = 3;
+/// A track not seen for this long (s) is dropped.
+const EXPIRE_S: f32 = 4.5;
+/// Smoothing of the period and carrier estimates.
+const ALPHA: f32 = 0.3;
+
+/// One transmitter being followed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Track {
+    /// The track's identifier (reported as the pulse's `src`).
+    pub id: u8,
+    /// Time of its last pulse (s).
+    pub last_t_s: f32,
+    /// Its pulse period (s), once known.
+    pub period_s: Option<f32>,
+    /// Its carrier offset (Hz).
+    pub carrier_offset_hz: f32,
+    /// Pulses attributed so far.
+    pub hits: u32,
+}
+
+/// Assigns pulses to transmitters; fixed capacity [`MAX_TRACKS`].
+#[derive(Debug, Clone, Default)]
+pub struct TransmitterTracker {
+    tracks: HVec<Track, MAX_TRACKS>,
+    next_id: u8,
+}
+
+impl TransmitterTracker {
+    /// An empty tracker.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// The live tracks.
+    pub fn tracks(&self) -> &[Track] {
+        &self.tracks
+    }
+
+    /// Attribute a pulse at `t_s` with carrier offset `offset_hz` to a transmitter and
+    /// return its id. Non-finite inputs are refused (`None`, state unchanged).
+    pub fn assign(&mut self, t_s: f32, offset_hz: f32) -> Option<u8> {
+        if !t_s.is_finite() || !offset_hz.is_finite() {
+            return None;
+        }
+        self.tracks.retain(|tr| t_s - tr.last_t_s <= EXPIRE_S);
+        let mut best: Option<(usize, f32, u32)> = None;
+        for (i, tr) in self.tracks.iter().enumerate() {
+            if let Some((cost, k)) = match_cost(tr, t_s, offset_hz)
+                && best.is_none_or(|(_, c, _)| cost < c)
+            {
+                best = Some((i, cost, k));
+            }
+        }
+        if let Some((i, _, k)) = best
+            && let Some(tr) = self.tracks.get_mut(i)
+        {
+            let period = (t_s - tr.last_t_s) / k as f32;
+            tr.period_s = Some(match tr.period_s {
+                Some(p) => p + ALPHA * (period - p),
+                None => period,
+            });
+            tr.carrier_offset_hz += ALPHA * (offset_hz - tr.carrier_offset_hz);
+            tr.last_t_s = t_s;
+            tr.hits = tr.hits.saturating_add(1);
+            return Some(tr.id);
+        }
+        let id = self.next_id;
+        self.next_id = self.next_id.wrapping_add(1);
+        let track = Track {
+            id,
+            last_t_s: t_s,
+            period_s: None,
+            carrier_offset_hz: offset_hz,
+            hits: 1,
+        };
+        if self.tracks.is_full() {
+            // Replace the track silent for longest.
+            let stalest = self
+                .tracks
+                .iter()
+                .enumerate()
+                .min_by(|a, b| a.1.last_t_s.total_cmp(&b.1.last_t_s))
+                .map(|(i, _)| i);
+            if let Some(i) = stalest {
+                self.tracks.swap_remove(i);
+            }
+        }
+        self.tracks.push(track).ok()?;
+        Some(id)
+    }
+}
+
+/// Cost of attributing a pulse to `tr` and the number of periods since its last pulse,
+/// or `None` when outside the gates.
+fn match_cost(tr: &Track, t_s: f32, offset_hz: f32) -> Option<(f32, u32)> {
+    let dt = t_s - tr.last_t_s;
+    let df = offset_hz - tr.carrier_offset_hz;
+    // The standard's off-time is at least 400 ms: anything closer is someone else.
+    if dt < 0.4 || df.abs() > FREQ_GATE_HZ {
+        return None;
+    }
+    let freq_cost = (df / FREQ_GATE_HZ) * (df / FREQ_GATE_HZ);
+    match tr.period_s {
+        Some(p) => {
+            let k = libm::roundf(dt / p);
+            if !(1.0..=(MAX_MISSED + 1) as f32).contains(&k) {
+                return None;
+            }
+            let err = dt - k * p;
+            // Allow the prediction error to grow with the periods bridged.
+            let gate = TIME_GATE_S * libm::sqrtf(k);
+            (err.abs() <= gate).then(|| ((err / gate) * (err / gate) + freq_cost, k as u32))
+        }
+        None => (1..=MAX_MISSED + 1)
+            .find(|&k| {
+                let p = dt / k as f32;
+                (PERIOD_MIN_S - TIME_GATE_S..=PERIOD_MAX_S + TIME_GATE_S).contains(&p)
+            })
+            // An unknown period matches anything plausible, at a fixed price above a
+            // good timed match so that established tracks win.
+            .map(|k| (1.0 + freq_cost, k)),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn two_interleaved_transmitters_keep_their_ids() {
+        let mut tr = TransmitterTracker::new();
+        let mut pulses: Vec<(f32, f32, usize)> = Vec::new();
+        for k in 0..10 {
+            pulses.push((0.1 + 0.95 * k as f32, -30.0, 0));
+            pulses.push((0.5 + 1.2 * k as f32, 40.0, 1));
+        }
+        pulses.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut ids = [None, None];
+        for (t, f, who) in pulses {
+            let id = tr.assign(t, f).unwrap();
+            match ids[who] {
+                None => ids[who] = Some(id),
+                Some(prev) => assert_eq!(prev, id, "pulse at {t} from tx {who}"),
+            }
+        }
+        assert_ne!(ids[0], ids[1]);
+        let p: Vec<f32> = tr.tracks().iter().map(|t| t.period_s.unwrap()).collect();
+        assert!(
+            p.iter().any(|p| (p - 0.95).abs() < 1e-3) && p.iter().any(|p| (p - 1.2).abs() < 1e-3)
+        );
+    }
+
+    #[test]
+    fn same_carrier_separated_by_timing_and_missed_pulses_bridged() {
+        let mut tr = TransmitterTracker::new();
+        let a: Vec<f32> = (0..8)
+            .map(|k| 0.2 + 1.0 * k as f32)
+            .filter(|t| (*t - 3.2).abs() > 0.01)
+            .collect();
+        let b: Vec<f32> = (0..7).map(|k| 0.75 + 1.1 * k as f32).collect();
+        let mut all: Vec<(f32, usize)> = a
+            .iter()
+            .map(|t| (*t, 0))
+            .chain(b.iter().map(|t| (*t, 1)))
+            .collect();
+        all.sort_by(|x, y| x.0.total_cmp(&y.0));
+        let mut ids = [None, None];
+        for (t, who) in all {
+            let id = tr.assign(t, 5.0).unwrap();
+            if ids[who].is_none() {
+                ids[who] = Some(id);
+            }
+            assert_eq!(ids[who], Some(id), "t = {t}");
+        }
+        assert!(tr.assign(f32::NAN, 0.0).is_none());
+    }
+
+    #[test]
+    fn capacity_is_bounded_and_stale_tracks_expire() {
+        let mut tr = TransmitterTracker::new();
+        for k in 0..10 {
+            tr.assign(0.01 * k as f32, -80.0 + 16.0 * k as f32);
+        }
+        assert_eq!(tr.tracks().len(), MAX_TRACKS);
+        tr.assign(100.0, 0.0);
+        assert_eq!(tr.tracks().len(), 1);
+    }
+}

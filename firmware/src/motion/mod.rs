@@ -1,0 +1,594 @@
+//! The rescuer's own motion from the IMU: attitude, steps, dead reckoning and the
+//! displacement between pulses that the estimator consumes (IROS 2006 eq. 4).
+//!
+//! - [`attitude`]: error-state Kalman filter of roll/pitch/yaw and gyro bias from
+//!   acc/gyr/mag, with magnetometer calibration and disturbance rejection.
+//! - [`steps`]: step detection on the vertical acceleration, step-length models and the
+//!   calibration walk.
+//! - [`pdr`]: Kleiner et al. eq. 1–3, the per-step pose and covariance propagation.
+//! - [`displacement`]: the per-pulse-interval displacement and its covariance `Q_k`.
+//!
+//! [`Motion`] ties them together: feed it every IMU sample with [`Motion::on_imu`], and
+//! at every pulse take the displacement since the previous pulse with
+//! [`Motion::take_displacement`].
+//!
+//! The walk-long scale error (the step-length calibration error) is correlated over the
+//! whole walk and is **not** in the per-interval `Q_k`; [`Motion::scale_sigma`] exposes its
+//! relative σ so the estimator can model it as a state.
+
+pub mod attitude;
+pub mod displacement;
+pub mod pdr;
+pub mod steps;
+
+pub use attitude::{AttitudeConfig, AttitudeFilter, MagCalibration, static_attitude};
+pub use displacement::{Displacement, Interval, Mat6, PdrNoise};
+pub use pdr::PdrPose;
+pub use steps::{
+    CalibrationResult, StepCalibration, StepDetector, StepDetectorConfig, StepEvent,
+    StepLengthModel,
+};
+
+use crate::frame::{Rpy, wrap_pi};
+use crate::{Mat3, Vec3};
+use attitude::GRAVITY;
+
+/// Why an IMU sample or a request was refused (the state is then unchanged).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum MotionError {
+    /// A NaN or infinite value.
+    NonFinite,
+    /// A reading at or beyond its sensor's full-scale range.
+    Saturated,
+    /// The sample's time is not after the previous sample's.
+    TimeNotIncreasing,
+    /// Too long since the previous sample (s); call [`Motion::resync`] to continue.
+    Gap {
+        /// Time since the previous sample, s.
+        dt: f32,
+    },
+    /// A calibration walk with too few steps.
+    TooFewSteps {
+        /// Steps counted.
+        steps: u32,
+    },
+    /// An argument out of its valid range.
+    InvalidArgument,
+    /// `finish_calibration` without `start_calibration`.
+    NoCalibration,
+}
+
+/// Configuration of the motion pipeline.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MotionConfig {
+    /// The local earth field in W, µT (declination folded in: x is north of W).
+    pub earth_field_ut: Vec3,
+    /// IMU sample rate, Hz.
+    pub imu_hz: f32,
+    /// Step-length model.
+    pub step_length: StepLengthModel,
+    /// Attitude filter tuning.
+    pub attitude: AttitudeConfig,
+    /// Step detector tuning.
+    pub steps: StepDetectorConfig,
+    /// Dead-reckoning noise.
+    pub noise: PdrNoise,
+    /// Magnetometer hard/soft-iron calibration.
+    pub mag_calibration: MagCalibration,
+    /// Accelerometer full scale, m/s² (a reading with |component| ≥ this is saturated).
+    pub acc_range_m_s2: f32,
+    /// Gyro full scale, rad/s.
+    pub gyr_range_rad_s: f32,
+    /// Magnetometer full scale, µT.
+    pub mag_range_ut: f32,
+    /// Longest accepted time between samples, s.
+    pub max_gap_s: f32,
+}
+
+impl MotionConfig {
+    /// Defaults for a 100 Hz IMU (±16 g, ±2000 °/s, ±4900 µT) with the given earth field and
+    /// calibrated step length (`None`: uncalibrated, 0.7 m ± 20 %).
+    pub fn new(earth_field_ut: Vec3, step_length_m: Option<f32>) -> Self {
+        Self {
+            earth_field_ut,
+            imu_hz: 100.0,
+            step_length: step_length_m
+                .filter(|l| l.is_finite() && *l > 0.0)
+                .map_or_else(StepLengthModel::uncalibrated, StepLengthModel::calibrated),
+            attitude: AttitudeConfig::default(),
+            steps: StepDetectorConfig::default(),
+            noise: PdrNoise::default(),
+            mag_calibration: MagCalibration::identity(),
+            acc_range_m_s2: 156.9,
+            gyr_range_rad_s: 34.9,
+            mag_range_ut: 4900.0,
+            max_gap_s: 0.1,
+        }
+    }
+}
+
+/// Circular mean of yaw samples (sums of sin and cos).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+struct YawMean {
+    s: f32,
+    c: f32,
+}
+
+impl YawMean {
+    fn add(&mut self, yaw: f32) {
+        self.s += libm::sinf(yaw);
+        self.c += libm::cosf(yaw);
+    }
+
+    fn mean(&self, fallback: f32) -> f32 {
+        if self.s * self.s + self.c * self.c > 1e-12 {
+            libm::atan2f(self.s, self.c)
+        } else {
+            fallback
+        }
+    }
+}
+
+/// State once the first sample has arrived.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Running {
+    att: AttitudeFilter,
+    interval: Interval,
+    t_last: f32,
+    rate: Vec3,
+    yaw_mean: YawMean,
+    last_length: f32,
+    period: f32,
+}
+
+/// Attitude, step detection and dead reckoning from IMU samples; displacement per pulse.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Motion {
+    cfg: MotionConfig,
+    det: StepDetector,
+    run: Option<Running>,
+    total_steps: u32,
+    weinberg_sum: f32,
+    distance_m: f32,
+    calibration: Option<StepCalibration>,
+}
+
+impl Motion {
+    /// A pipeline waiting for its first IMU sample.
+    pub fn new(cfg: MotionConfig) -> Self {
+        Self {
+            det: StepDetector::new(cfg.steps, cfg.imu_hz),
+            cfg,
+            run: None,
+            total_steps: 0,
+            weinberg_sum: 0.0,
+            distance_m: 0.0,
+            calibration: None,
+        }
+    }
+
+    /// The configuration in use.
+    pub fn config(&self) -> &MotionConfig {
+        &self.cfg
+    }
+
+    /// One IMU sample: time (s), specific force (m/s²), rate (rad/s), flux density (µT),
+    /// all in the body frame. On error the state is unchanged.
+    pub fn on_imu(
+        &mut self,
+        t: f32,
+        acc: &Vec3,
+        gyr: &Vec3,
+        mag: &Vec3,
+    ) -> Result<(), MotionError> {
+        self.on_imu_sample(t, acc, gyr, Some(mag))
+    }
+
+    /// Like [`on_imu`](Self::on_imu) with an optional magnetometer reading (a sample
+    /// without one propagates and corrects tilt only).
+    pub fn on_imu_sample(
+        &mut self,
+        t: f32,
+        acc: &Vec3,
+        gyr: &Vec3,
+        mag: Option<&Vec3>,
+    ) -> Result<(), MotionError> {
+        self.check(t, acc, gyr, mag)?;
+        let mut next = self.clone();
+        next.apply(t, acc, gyr, mag);
+        let ok = next.run.as_ref().is_some_and(|r| {
+            r.att.rpy().iter().all(|x| x.is_finite())
+                && r.att.gyro_bias().iter().all(|x| x.is_finite())
+                && r.interval.pose().cov.iter().all(|x| x.is_finite())
+        }) && next.distance_m.is_finite();
+        if !ok {
+            return Err(MotionError::NonFinite);
+        }
+        *self = next;
+        Ok(())
+    }
+
+    fn check(&self, t: f32, acc: &Vec3, gyr: &Vec3, mag: Option<&Vec3>) -> Result<(), MotionError> {
+        let finite = |v: &Vec3| v.iter().all(|x| x.is_finite());
+        if !t.is_finite() || !finite(acc) || !finite(gyr) || !mag.is_none_or(finite) {
+            return Err(MotionError::NonFinite);
+        }
+        let within = |v: &Vec3, r: f32| v.iter().all(|x| libm::fabsf(*x) < r);
+        if !within(acc, self.cfg.acc_range_m_s2)
+            || !within(gyr, self.cfg.gyr_range_rad_s)
+            || !mag.is_none_or(|m| within(m, self.cfg.mag_range_ut))
+        {
+            return Err(MotionError::Saturated);
+        }
+        if let Some(r) = &self.run {
+            let dt = t - r.t_last;
+            if dt <= 0.0 {
+                return Err(MotionError::TimeNotIncreasing);
+            }
+            if dt > self.cfg.max_gap_s {
+                return Err(MotionError::Gap { dt });
+            }
+        }
+        Ok(())
+    }
+
+    fn apply(&mut self, t: f32, acc: &Vec3, gyr: &Vec3, mag: Option<&Vec3>) {
+        let mag = mag.map(|m| self.cfg.mag_calibration.apply(m));
+        let Some(run) = self.run.as_mut() else {
+            let att = AttitudeFilter::new(
+                self.cfg.attitude,
+                self.cfg.earth_field_ut,
+                acc,
+                &mag.unwrap_or_else(Vec3::zeros),
+            );
+            self.run = Some(Running {
+                interval: Interval::new(t, att.rotation()),
+                att,
+                t_last: t,
+                rate: gyr - att.gyro_bias(),
+                yaw_mean: YawMean::default(),
+                last_length: self.cfg.step_length.length(0.0),
+                period: 1.0 / 1.8,
+            });
+            return;
+        };
+        let dt = t - run.t_last;
+        run.att.update(dt, acc, gyr, mag.as_ref());
+        run.t_last = t;
+        run.rate = run.att.corrected_rate(gyr);
+        let r = run.att.rotation();
+        let yaw = rpy_yaw(&r);
+        run.yaw_mean.add(yaw);
+        // Vertical specific force in W minus g: the step's vertical acceleration.
+        let a_vertical = (r * acc).z - GRAVITY;
+        let Some(ev) = self.det.update(t, a_vertical) else {
+            return;
+        };
+        let model = self.cfg.step_length;
+        let length = model.length(ev.amplitude);
+        let heading = run.yaw_mean.mean(yaw);
+        run.yaw_mean = YawMean::default();
+        // The first step of a walk also carries the start-up (a shorter, weaker first step
+        // may go undetected): extra half-step σ.
+        let start_up = if ev.period > 0.0 { 0.0 } else { 0.5 * length };
+        let rel = self.cfg.noise.step_rel_sigma * length;
+        let sd = libm::sqrtf(rel * rel + start_up * start_up);
+        run.interval
+            .add_stride(ev.t_peak, length, heading, sd * sd, &self.cfg.noise);
+        run.interval.count_step();
+        run.last_length = length;
+        let (lo, hi) = (self.cfg.steps.min_interval_s, self.cfg.steps.max_interval_s);
+        if (lo..=hi).contains(&ev.period) {
+            run.period += 0.3 * (ev.period - run.period);
+        }
+        self.total_steps = self.total_steps.saturating_add(1);
+        self.weinberg_sum += steps::weinberg_factor(ev.amplitude);
+        self.distance_m += length;
+    }
+
+    /// The displacement since the previous call (or since the first sample), closed at the
+    /// pulse time `t_pulse` (IROS 2006 eq. 4), and a new interval started there.
+    ///
+    /// The step in progress is credited by the fraction of the step period elapsed since the
+    /// last step (taken back from the next interval), so that a pulse between two steps does
+    /// not see the walk in quanta of a whole step. Before the first IMU sample it returns
+    /// "still" with a σ of 1 m and 0.5 rad. A non-finite `t_pulse` is treated as the last
+    /// sample's time.
+    pub fn take_displacement(&mut self, t_pulse: f32) -> Displacement {
+        let noise = self.cfg.noise;
+        let max_gap = self.cfg.max_gap_s;
+        let last_step = self.det.last_step();
+        let pending = self.det.pending_peak();
+        let max_interval = self.cfg.steps.max_interval_s;
+        let Some(run) = self.run.as_mut() else {
+            return Displacement::still(1.0, 0.5);
+        };
+        let t = if t_pulse.is_finite() {
+            t_pulse
+        } else {
+            run.t_last
+        };
+        // Attitude at the pulse: extrapolate from the last sample with the last rate.
+        let ahead = (t - run.t_last).clamp(-max_gap, max_gap);
+        let rk = run.att.rotation_ahead(&run.rate, ahead);
+        let yaw_now = run.yaw_mean.mean(rpy_yaw(&rk));
+        // Fraction of a step period since the last step: up to one period the walk goes on;
+        // an overdue step means the walker is slowing down or stopping, and somewhere
+        // between nothing and a step has been walked (credit half, with a large σ); two
+        // periods without a step mean a stop.
+        let f = match last_step {
+            Some(ls) if t - ls < max_interval && run.period > 0.0 => (t - ls) / run.period,
+            _ => 2.0,
+        };
+        let (frac, sigma_steps) = if let Some(tp) = pending {
+            // A peak is above threshold but not yet confirmed: one step at its peak, plus
+            // the time since; the first peak of a walk also carries the start-up.
+            let since = ((t - tp) / run.period.max(0.1)).clamp(0.0, 0.5);
+            match last_step {
+                Some(_) => (1.0 + since, noise.partial_step_sigma),
+                None => (0.5 + since, 0.5),
+            }
+        } else if f <= 1.0 {
+            (f.max(0.0), noise.partial_step_sigma)
+        } else if f < 2.0 {
+            (0.5, 0.35)
+        } else {
+            (0.0, 0.0)
+        };
+        let partial = frac * run.last_length;
+        let sp = sigma_steps * run.last_length;
+        let mut closing = run.interval;
+        if partial > 0.0 {
+            closing.add_stride(t, partial, yaw_now, sp * sp, &noise);
+        }
+        // Residual gyro-bias uncertainty drifts the relative rotation over the interval.
+        let pb = run.att.error_cov();
+        let bias_var = pb[(3, 3)].max(pb[(4, 4)]).max(pb[(5, 5)]);
+        let d = closing.close(t, &rk, &noise, bias_var);
+        let mut next = Interval::new(t, rk);
+        if partial > 0.0 {
+            next.add_stride(t, -partial, yaw_now, sp * sp, &noise);
+        }
+        run.interval = next;
+        d
+    }
+
+    /// Roll, pitch, yaw of the body in W (rad) and their covariance (rad²). Before the first
+    /// sample: zeros with σ = π.
+    pub fn attitude(&self) -> (Rpy, Mat3) {
+        match &self.run {
+            Some(r) => (r.att.rpy(), r.att.rpy_cov()),
+            None => (
+                Rpy::zeros(),
+                Mat3::identity() * (core::f32::consts::PI * core::f32::consts::PI),
+            ),
+        }
+    }
+
+    /// The attitude filter, once the first sample has arrived.
+    pub fn attitude_filter(&self) -> Option<&AttitudeFilter> {
+        self.run.as_ref().map(|r| &r.att)
+    }
+
+    /// Relative σ of the walk-long step-length scale error (not in any `Q_k`).
+    pub fn scale_sigma(&self) -> f32 {
+        self.cfg.step_length.scale_sigma()
+    }
+
+    /// Steps detected since the start.
+    pub fn total_steps(&self) -> u32 {
+        self.total_steps
+    }
+
+    /// Distance walked since the start (sum of step lengths), m.
+    pub fn total_distance_m(&self) -> f32 {
+        self.distance_m
+    }
+
+    /// Current step cadence estimate, steps/s (0 before the first sample).
+    pub fn cadence_hz(&self) -> f32 {
+        self.run
+            .as_ref()
+            .filter(|r| r.period > 0.0)
+            .map_or(0.0, |r| 1.0 / r.period)
+    }
+
+    /// Replaces the step-length model (e.g. after a calibration walk).
+    pub fn set_step_length_model(&mut self, model: StepLengthModel) {
+        self.cfg.step_length = model;
+    }
+
+    /// Replaces the magnetometer calibration.
+    pub fn set_mag_calibration(&mut self, cal: MagCalibration) {
+        self.cfg.mag_calibration = cal;
+    }
+
+    /// Continues after a [`MotionError::Gap`]: accepts `t` as the last sample time, inflates
+    /// the attitude covariance for the gap and restarts step detection. The steps missed
+    /// in the gap are lost (the current interval only knows the walk around it).
+    pub fn resync(&mut self, t: f32) -> Result<(), MotionError> {
+        let Some(run) = self.run.as_mut() else {
+            return Ok(());
+        };
+        if !t.is_finite() {
+            return Err(MotionError::NonFinite);
+        }
+        if t <= run.t_last {
+            return Err(MotionError::TimeNotIncreasing);
+        }
+        run.att.inflate_for_gap(t - run.t_last);
+        run.t_last = t;
+        self.det.reset();
+        Ok(())
+    }
+
+    /// Button press at the start of a calibration walk.
+    pub fn start_calibration(&mut self) {
+        self.calibration = Some(StepCalibration::start(self.total_steps, self.weinberg_sum));
+    }
+
+    /// Button press at the end of a calibration walk of `distance_m` metres: on success the
+    /// calibrated step length replaces the step-length model.
+    pub fn finish_calibration(
+        &mut self,
+        distance_m: f32,
+    ) -> Result<CalibrationResult, MotionError> {
+        let cal = self.calibration.ok_or(MotionError::NoCalibration)?;
+        let r = cal.finish(self.total_steps, self.weinberg_sum, distance_m)?;
+        self.cfg.step_length = StepLengthModel::calibrated(r.step_length_m);
+        self.calibration = None;
+        Ok(r)
+    }
+}
+
+/// Yaw of a rotation matrix (rad), as in [`crate::frame::rpy_from_rotation`].
+fn rpy_yaw(r: &Mat3) -> f32 {
+    wrap_pi(libm::atan2f(r[(1, 0)], r[(0, 0)]))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::frame::rotation_from_rpy;
+
+    fn earth() -> Vec3 {
+        Vec3::new(21.792, 0.0, -42.768)
+    }
+
+    fn level_sample(yaw: f32) -> (Vec3, Vec3) {
+        let r = rotation_from_rpy(&Rpy::new(0.0, 0.05, yaw));
+        (
+            r.transpose() * Vec3::new(0.0, 0.0, GRAVITY),
+            r.transpose() * earth(),
+        )
+    }
+
+    fn running() -> Motion {
+        let mut m = Motion::new(MotionConfig::new(earth(), Some(0.6)));
+        let (acc, mag) = level_sample(0.3);
+        for k in 0..50 {
+            m.on_imu(k as f32 * 0.01, &acc, &Vec3::zeros(), &mag)
+                .unwrap();
+        }
+        m
+    }
+
+    #[test]
+    fn bad_input_leaves_state_unchanged() {
+        let mut m = running();
+        let before = m.clone();
+        let (acc, mag) = level_sample(0.3);
+        let z = Vec3::zeros();
+        let nan = Vec3::new(f32::NAN, 0.0, 0.0);
+        let inf = Vec3::new(0.0, f32::INFINITY, 0.0);
+        let t = 0.5;
+        assert_eq!(m.on_imu(t, &nan, &z, &mag), Err(MotionError::NonFinite));
+        assert_eq!(m.on_imu(t, &acc, &inf, &mag), Err(MotionError::NonFinite));
+        assert_eq!(m.on_imu(t, &acc, &z, &nan), Err(MotionError::NonFinite));
+        assert_eq!(
+            m.on_imu(f32::NAN, &acc, &z, &mag),
+            Err(MotionError::NonFinite)
+        );
+        let sat = Vec3::new(0.0, 0.0, 160.0);
+        assert_eq!(m.on_imu(t, &sat, &z, &mag), Err(MotionError::Saturated));
+        let spin = Vec3::new(35.0, 0.0, 0.0);
+        assert_eq!(m.on_imu(t, &acc, &spin, &mag), Err(MotionError::Saturated));
+        assert_eq!(
+            m.on_imu(49.0 * 0.01, &acc, &z, &mag),
+            Err(MotionError::TimeNotIncreasing)
+        );
+        assert_eq!(
+            m.on_imu(0.2, &acc, &z, &mag),
+            Err(MotionError::TimeNotIncreasing)
+        );
+        assert!(matches!(
+            m.on_imu(1.0, &acc, &z, &mag),
+            Err(MotionError::Gap { .. })
+        ));
+        assert_eq!(m, before);
+        // After a gap, resync lets the samples flow again.
+        m.resync(1.0).unwrap();
+        m.on_imu(1.01, &acc, &z, &mag).unwrap();
+        // A calibration without a start, and with too few steps.
+        assert_eq!(m.finish_calibration(20.0), Err(MotionError::NoCalibration));
+        m.start_calibration();
+        assert_eq!(
+            m.finish_calibration(20.0),
+            Err(MotionError::TooFewSteps { steps: 0 })
+        );
+    }
+
+    #[test]
+    fn standing_still_gives_a_still_displacement() {
+        let mut m = running();
+        let d0 = m.take_displacement(0.495);
+        let (acc, mag) = level_sample(0.3);
+        for k in 50..150 {
+            m.on_imu(k as f32 * 0.01, &acc, &Vec3::zeros(), &mag)
+                .unwrap();
+        }
+        let d = m.take_displacement(1.495);
+        assert!(d0.translation.norm() < 1e-6 && d.translation.norm() < 1e-6);
+        assert!(d.rotation.norm() < 1e-3);
+        assert_eq!(d.steps, 0);
+        let (rpy, cov) = m.attitude();
+        assert!((rpy - Rpy::new(0.0, 0.05, 0.3)).norm() < 1e-3);
+        assert!(cov[(2, 2)] > 0.0);
+        assert!((m.scale_sigma() - 0.02).abs() < 1e-7);
+    }
+
+    #[test]
+    fn synthetic_walk_counts_steps_and_moves_forward() {
+        // Walk north-west (yaw 0.8) at 1.8 steps/s with a 2.5 m/s² vertical bob.
+        let mut m = Motion::new(MotionConfig::new(earth(), Some(0.6)));
+        let yaw = 0.8f32;
+        let r = rotation_from_rpy(&Rpy::new(0.0, 0.1, yaw));
+        let mag = r.transpose() * earth();
+        let f = 1.8f32;
+        let mut total = Vec3::zeros();
+        let mut steps = 0u32;
+        for k in 0..1000 {
+            let t = k as f32 * 0.01;
+            let a_w = Vec3::new(0.0, 0.0, 2.5 * (2.0 * core::f32::consts::PI * f * t).sin());
+            let acc = r.transpose() * (a_w + Vec3::new(0.0, 0.0, GRAVITY));
+            m.on_imu(t, &acc, &Vec3::zeros(), &mag).unwrap();
+            if k % 100 == 99 {
+                let d = m.take_displacement(t);
+                total += r * d.translation;
+                steps += d.steps as u32;
+            }
+        }
+        // 10 s × 1.8 = 18 peaks (the first needs the filter to settle).
+        assert!((17..=18).contains(&m.total_steps()), "{}", m.total_steps());
+        assert_eq!(steps, m.total_steps());
+        let dir = Vec3::new(yaw.cos(), yaw.sin(), 0.0);
+        let along = total.dot(&dir);
+        assert!((along - 0.6 * steps as f32).abs() < 0.61, "{along}");
+        assert!((total - dir * along).norm() < 0.05);
+    }
+
+    #[test]
+    fn calibration_walk_sets_the_step_length() {
+        let mut m = Motion::new(MotionConfig::new(earth(), None));
+        let r = rotation_from_rpy(&Rpy::new(0.0, 0.0, 0.0));
+        let mag = r.transpose() * earth();
+        for k in 0..2500 {
+            let t = k as f32 * 0.01;
+            if k == 100 {
+                m.start_calibration();
+            }
+            let az = if k >= 100 {
+                2.5 * (2.0 * core::f32::consts::PI * 1.8 * t).sin()
+            } else {
+                0.0
+            };
+            let acc = Vec3::new(0.0, 0.0, GRAVITY + az);
+            m.on_imu(t, &acc, &Vec3::zeros(), &mag).unwrap();
+        }
+        let n = m.total_steps();
+        let res = m.finish_calibration(20.0).unwrap();
+        assert_eq!(res.steps, n);
+        assert!((res.step_length_m - 20.0 / n as f32).abs() < 1e-5);
+        assert!((m.scale_sigma() - 0.02).abs() < 1e-7);
+    }
+}
