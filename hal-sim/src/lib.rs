@@ -3,6 +3,7 @@
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used, clippy::panic))]
 
 pub mod accuracy;
+pub mod budget_data;
 pub mod field_map;
 pub mod inspect;
 pub mod jet;

@@ -2,7 +2,7 @@
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 use hal_sim::receiver_config::ReceiverConfig;
-use hal_sim::{accuracy, field_map, inspect, replay, session, simulate};
+use hal_sim::{accuracy, budget_data, field_map, inspect, replay, session, simulate};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
@@ -41,6 +41,9 @@ enum Command {
     /// Monte Carlo accuracy of the SOGs estimator over seeded scenarios (the papers'
     /// protocol), printed as a markdown report in the papers' table layout.
     Accuracy(accuracy::Args),
+    /// Write the recorded estimator steps that the on-target budget binary replays under
+    /// QEMU (a Rust source of constants).
+    BudgetData(budget_data::Args),
 }
 
 fn read_log(path: &Path) -> Result<session::Session> {
@@ -79,5 +82,6 @@ fn main() -> Result<()> {
         }
         Command::FieldMap(args) => field_map::run(&args, &mut stdout.lock()),
         Command::Accuracy(args) => accuracy::run(&args, &mut stdout.lock()),
+        Command::BudgetData(args) => budget_data::run(&args),
     }
 }
