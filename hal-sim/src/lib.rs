@@ -16,5 +16,6 @@ pub mod scenario;
 pub mod sensors;
 pub mod session;
 pub mod simulate;
+pub mod sog_replay;
 pub mod transmitter;
 pub mod world;

@@ -64,7 +64,7 @@ fn main() -> Result<()> {
                 Some(p) => ReceiverConfig::read_file(&p)?,
                 None => ReceiverConfig::default(),
             };
-            let mut estimator = replay::estimator_for(&s.header, &config);
+            let mut estimator = replay::estimator_for(&s.header, &config)?;
             let bar = indicatif::ProgressBar::new(s.records.len() as u64);
             let mut out = std::io::BufWriter::new(stdout.lock());
             replay::replay(&s, estimator.as_mut(), &mut out, |i| {

@@ -2,8 +2,8 @@
 //! JSON Lines, one line per pulse.
 //!
 //! The estimator is a plug-in behind [`Estimator`]; [`estimator_for`] is the single place
-//! that chooses it. Until the firmware's estimator lands, [`NoEstimator`] answers every
-//! pulse with an empty `victims` list.
+//! that chooses it: the firmware's pipeline. [`NoEstimator`] (empty `victims`) remains for
+//! tests of the output format.
 use crate::receiver_config::ReceiverConfig;
 use crate::session::{Header, Imu, Pulse, Record, Session};
 use serde::{Deserialize, Serialize};
@@ -80,10 +80,15 @@ impl Estimator for NoEstimator {
     }
 }
 
-/// The estimator `replay` uses for a log with this header and receiver configuration.
-/// Plugging in the firmware's estimator is a change to this function only.
-pub fn estimator_for(_header: &Header, _receiver: &ReceiverConfig) -> Box<dyn Estimator> {
-    Box::new(NoEstimator)
+/// The estimator `replay` uses for a log with this header and receiver configuration:
+/// the firmware's motion + SOGs pipeline ([`crate::sog_replay::SogReplay`]).
+pub fn estimator_for(
+    header: &Header,
+    receiver: &ReceiverConfig,
+) -> anyhow::Result<Box<dyn Estimator>> {
+    Ok(Box::new(crate::sog_replay::SogReplay::new(
+        header, receiver,
+    )?))
 }
 
 /// Replays `session` through the estimator [`estimator_for`] picks for it and `receiver`,
@@ -93,7 +98,7 @@ pub fn replay_with_config(
     receiver: &ReceiverConfig,
     out: &mut impl Write,
 ) -> anyhow::Result<usize> {
-    let mut estimator = estimator_for(&session.header, receiver);
+    let mut estimator = estimator_for(&session.header, receiver)?;
     replay(session, estimator.as_mut(), out, |_| {})
 }
 
