@@ -38,29 +38,50 @@ pub enum Case {
 }
 
 /// Noise of the displacement fed to the estimator (and declared in `Q_k`).
+///
+/// Translation follows the pedestrian-dead-reckoning model of Kleiner et al. (eq. 3,
+/// `σ_d² = (0.05 m/√m)² · d`): the error variance grows with the distance walked in the
+/// interval, so a receiver standing still (no step detected) gets no walking error,
+/// only the hand's wobble around the body (`sigma_hand_m`).
 #[derive(Debug, Clone, Copy, Serialize)]
 pub struct MotionNoise {
-    /// Per-interval translation noise per horizontal axis, m.
-    pub sigma_t_m: f64,
-    /// Per-interval vertical translation noise, m.
-    pub sigma_z_m: f64,
+    /// Translation noise per horizontal axis per √(metre walked), m/√m.
+    pub sigma_t_m_per_sqrt_m: f64,
+    /// Vertical translation noise per √(metre walked), m/√m.
+    pub sigma_z_m_per_sqrt_m: f64,
+    /// Per-interval hand wobble per axis, independent of walking, m.
+    pub sigma_hand_m: f64,
     /// Per-interval rotation noise per angle, rad.
     pub sigma_r_rad: f64,
     /// Standard deviation of the walk-long scale error when uncalibrated.
     pub scale_sigma_uncalibrated: f64,
-    /// Attitude error at the first pulse: tilt and yaw standard deviations, rad.
+    /// Absolute attitude error on every pulse (roll/pitch from gravity, yaw from the
+    /// tilt-compensated magnetometer): tilt and yaw standard deviations, rad.
     pub attitude_sigma_rad: [f64; 2],
 }
 
 impl Default for MotionNoise {
     fn default() -> Self {
         Self {
-            sigma_t_m: 0.04,
-            sigma_z_m: 0.02,
+            sigma_t_m_per_sqrt_m: 0.05,
+            sigma_z_m_per_sqrt_m: 0.02,
+            sigma_hand_m: 0.01,
             sigma_r_rad: 0.01,
             scale_sigma_uncalibrated: 0.08,
             attitude_sigma_rad: [0.02, 0.05],
         }
+    }
+}
+
+impl MotionNoise {
+    /// Per-axis translation standard deviations (horizontal, vertical) for an interval
+    /// in which the receiver moved `walked` metres horizontally.
+    pub fn translation_sigmas(&self, walked: f64) -> (f64, f64) {
+        let h2 = self.sigma_hand_m * self.sigma_hand_m;
+        (
+            (self.sigma_t_m_per_sqrt_m.powi(2) * walked + h2).sqrt(),
+            (self.sigma_z_m_per_sqrt_m.powi(2) * walked + h2).sqrt(),
+        )
     }
 }
 
@@ -231,11 +252,13 @@ fn noisy_displacement(
     if exact {
         return Displacement::with_sigmas(to_f32(&t_true), rot, 0.0, 0.0);
     }
+    // The dead reckoning's distance walked (what its error model can see).
+    let (sigma_t, sigma_z) = noise.translation_sigmas(t_true.xy().norm() * scale);
     let t = t_true * scale
         + V3::new(
-            noise.sigma_t_m * gauss(rng),
-            noise.sigma_t_m * gauss(rng),
-            noise.sigma_z_m * gauss(rng),
+            sigma_t * gauss(rng),
+            sigma_t * gauss(rng),
+            sigma_z * gauss(rng),
         );
     let r = rot
         + firmware::Vec3::new(
@@ -243,13 +266,8 @@ fn noisy_displacement(
             (noise.sigma_r_rad * gauss(rng)) as f32,
             (noise.sigma_r_rad * gauss(rng)) as f32,
         );
-    let mut d = Displacement::with_sigmas(
-        to_f32(&t),
-        r,
-        noise.sigma_t_m as f32,
-        noise.sigma_r_rad as f32,
-    );
-    d.cov[(2, 2)] = (noise.sigma_z_m * noise.sigma_z_m) as f32;
+    let mut d = Displacement::with_sigmas(to_f32(&t), r, sigma_t as f32, noise.sigma_r_rad as f32);
+    d.cov[(2, 2)] = (sigma_z * sigma_z) as f32;
     d
 }
 
@@ -266,7 +284,7 @@ fn noisy_attitude(rng: &mut ChaCha8Rng, noise: &MotionNoise, rpy: &V3, exact: bo
 pub fn run_open_loop(case: Case, seed: u64, noise: &MotionNoise) -> RunResult {
     let preset = match case {
         Case::Paths => {
-            if seed % 2 == 0 {
+            if seed.is_multiple_of(2) {
                 Preset::Line
             } else {
                 Preset::Arc
@@ -358,16 +376,43 @@ fn flux_direction(h_w: &V3, sign: f64) -> Option<V3> {
     (d.norm() > 0.0).then(|| d.normalize())
 }
 
-/// Whether the mixture is trusted enough to walk to its mean (IROS III-C): the
-/// horizontal uncertainty is small compared with the distance to the mean.
-fn trusted(est: &VictimEstimate) -> bool {
-    let d = est.p.xy().norm();
+/// Squared Mahalanobis distance of the receiver (the origin of `G_k`) from the mixture
+/// mean, horizontally (IROS III-C: the rescuer is sent to the mean once the receiver is
+/// far from it in Mahalanobis distance, i.e. once the whole belief lies to one side).
+fn horizontal_mahalanobis2(est: &VictimEstimate) -> f64 {
     let c = est.cov;
-    // Largest eigenvalue of the horizontal 2×2 block.
-    let (a, b, cc) = (c[(0, 0)], c[(0, 1)], c[(1, 1)]);
-    let lmax = 0.5 * (a + cc) + ((0.5 * (a - cc)).powi(2) + b * b).sqrt();
-    lmax.sqrt() < 0.25 * d.max(1.0) && est.max_weight > 0.5
+    let (a, b, d) = (c[(0, 0)] as f64, c[(0, 1)] as f64, c[(1, 1)] as f64);
+    let det = a * d - b * b;
+    if det <= 0.0 {
+        return 0.0;
+    }
+    let (x, y) = (est.p.x as f64, est.p.y as f64);
+    (d * x * x - 2.0 * b * x * y + a * y * y) / det
 }
+
+/// Unit principal axis (W, horizontal) and largest standard deviation of the horizontal
+/// position covariance.
+fn horizontal_axis(est: &VictimEstimate) -> (V3, f64) {
+    let c = est.cov;
+    let (a, b, cc) = (c[(0, 0)] as f64, c[(0, 1)] as f64, c[(1, 1)] as f64);
+    let lmax = 0.5 * (a + cc) + ((0.5 * (a - cc)).powi(2) + b * b).sqrt();
+    // Eigenvector of [[a, b], [b, cc]] for lmax.
+    let v = if b.abs() > 1e-12 {
+        V3::new(lmax - cc, b, 0.0)
+    } else if a >= cc {
+        V3::x()
+    } else {
+        V3::y()
+    };
+    let n = v.norm();
+    let axis = if n > 0.0 { v / n } else { V3::x() };
+    (axis, lmax.max(0.0).sqrt())
+}
+
+/// Guidance thresholds of the closed loop.
+const GO_TO_MEAN_D2: f64 = 9.0; // 3σ: the receiver is outside the belief's 3σ ellipse
+const PROBE_RADIUS_M: f64 = 0.3; // "probe here" when the mean is this close, horizontally
+const PROBE_STILL_PULSES: usize = 4; // pulses taken standing still before probing
 
 /// One closed-loop rescue (the papers' protocol): start 40–70 m away, 1 m/s, a pulse
 /// per transmitter period, stop at "probe here".
@@ -405,6 +450,9 @@ pub fn run_closed_loop(seed: u64, noise: &MotionNoise) -> RunResult {
     };
     let mut previous: Option<(V3, M3)> = None;
     let mut probe_hold = 0;
+    let mut going_to_mean = false;
+    let mut sure_hold = 0;
+    let mut sweep = 1.0;
     for k in 0..3 * ideal + 10 {
         let t = tx.phase_s + k as f64 * tx.period_s;
         let (rpy, rot) = walker.rotation(&mut rng);
@@ -440,21 +488,49 @@ pub fn run_closed_loop(seed: u64, noise: &MotionNoise) -> RunResult {
         if filter.is_initialized() {
             previous = Some((walker.p, rot));
         }
-        // Guidance for the next period.
+        // Guidance for the next period (IROS III-C): follow the flux line until the
+        // receiver is far from the mixture mean in Mahalanobis distance, then walk to
+        // the mean; once over it, stand still for a few pulses (no walking error, the
+        // strongest field) and probe.
         let step = tx.period_s; // 1 m/s
+        if let Some(e) = est
+            && horizontal_mahalanobis2(&e) >= GO_TO_MEAN_D2
+        {
+            going_to_mean = true;
+        }
         let target = match est {
-            Some(e) if trusted(&e) => {
+            Some(e) if going_to_mean => {
                 let to_mean = V3::new(e.p.x as f64, e.p.y as f64, 0.0);
-                let sigma_h = (e.cov[(0, 0)] + e.cov[(1, 1)]).max(0.0).sqrt() as f64;
-                if to_mean.norm() < 0.3_f64.max(sigma_h) {
+                if to_mean.norm() < PROBE_RADIUS_M {
+                    // Over the mean. A single spot cannot separate the transmitter's
+                    // position from its moment, so while the 3σ circle is wider than
+                    // the probe radius, sweep across the mean along the most uncertain
+                    // horizontal axis (±0.5 m, the classical fine search's bracketing);
+                    // once sure, stand still for the last pulses and probe.
+                    let (axis, sigma) = horizontal_axis(&e);
                     probe_hold += 1;
-                    if probe_hold >= 3 {
+                    if 3.0 * sigma <= PROBE_RADIUS_M {
+                        sure_hold += 1;
+                        if sure_hold >= PROBE_STILL_PULSES {
+                            tracker.result.steps_to_probe = Some(k + 1);
+                            break;
+                        }
+                        None
+                    } else if probe_hold >= 4 * PROBE_STILL_PULSES {
                         tracker.result.steps_to_probe = Some(k + 1);
                         break;
+                    } else {
+                        sure_hold = 0;
+                        sweep = -sweep;
+                        Some(to_mean + axis * (0.5 * sweep))
                     }
-                    None
+                } else if probe_hold > 0 && to_mean.norm() < 1.0 {
+                    // Still sweeping across the mean.
+                    sweep = -sweep;
+                    Some(to_mean + horizontal_axis(&e).0 * (0.5 * sweep))
                 } else {
                     probe_hold = 0;
+                    sure_hold = 0;
                     Some(to_mean)
                 }
             }

@@ -71,11 +71,21 @@ fn simulate_inspect_replay() {
     let session = hal_sim::session::read_file(&log).unwrap();
     let lines: Vec<String> = text(&out.stdout).lines().map(String::from).collect();
     assert_eq!(lines.len(), session.pulses().count());
+    let mut initialized = false;
     for (line, pulse) in lines.iter().zip(session.pulses()) {
         let v: hal_sim::replay::ReplayLine = serde_json::from_str(line).unwrap();
         assert_eq!(v.t, pulse.t);
-        assert!(v.victims.is_empty());
+        // Once the estimator holds a belief it reports one victim on every later pulse.
+        assert!(v.victims.len() <= 1);
+        assert!(
+            !initialized || v.victims.len() == 1,
+            "estimate lost at t = {}",
+            v.t
+        );
+        initialized |= !v.victims.is_empty();
+        assert_eq!(v.n_components == 0, v.victims.is_empty());
     }
+    assert!(initialized, "the estimator never initialized");
 }
 
 #[test]

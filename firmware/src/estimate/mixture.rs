@@ -162,64 +162,38 @@ const SPLIT_MU: [f32; 3] = [-1.057_515_5, 0.0, 1.057_515_5];
 
 /// Splits components whose position uncertainty is large compared with their range
 /// (largest σ > `ratio`·range): the field then changes too nonlinearly over the
-/// component for one EKF linearization. Splitting is along the principal position
-/// axis, carried to the whole state through the covariance (so the correlated moment
-/// moves with the position). Stops when the capacity is reached. Returns the number of
+/// component for one EKF linearization (|H| ∝ r⁻³, so σ = 0.1·r already means a 30 %
+/// change of the field within 1σ). Splitting is along the principal position axis,
+/// carried to the whole state through the covariance (so the correlated moment moves
+/// with the position). The free capacity goes to the heaviest candidates first (they
+/// carry the estimate); the rest wait for later pulses. Returns the number of
 /// components split.
 pub(crate) fn split<const N: usize>(
     comps: &mut Vec<Component, N>,
     ratio: f32,
     min_weight: f32,
 ) -> u16 {
-    let mut count = 0u16;
-    let n0 = comps.len();
     let log_min_w = libm::logf(min_weight.max(f32::MIN_POSITIVE));
-    for i in 0..n0 {
+    // Candidates as (log-weight, index), heaviest first.
+    let mut order: Vec<(f32, u16), N> = Vec::new();
+    for (i, c) in comps.iter().enumerate() {
+        if c.log_w >= log_min_w && order.push((c.log_w, i as u16)).is_err() {
+            break;
+        }
+    }
+    order.sort_unstable_by(|a, b| b.0.total_cmp(&a.0));
+    let mut count = 0u16;
+    for &(_, i) in order.iter() {
         if comps.len() + 2 > N {
             break;
         }
-        let Some(c) = comps.get(i).copied() else {
-            break;
+        let Some(c) = comps.get(i as usize).copied() else {
+            continue;
         };
-        if c.log_w < log_min_w {
+        let Some(parts) = split_one(&c, ratio) else {
             continue;
-        }
-        let ppp = c.block3(I_P);
-        let (axis, lambda) = principal_axis(&ppp);
-        let range = Vec3::new(c.x[I_P], c.x[I_P + 1], c.x[I_P + 2]).norm();
-        let sigma = libm::sqrtf(lambda.max(0.0));
-        // Never split below 2 cm: the point-dipole model itself is not better than that.
-        if sigma <= ratio * range || sigma < 0.02 {
-            continue;
-        }
-        let p = c.p();
-        // v = P e / sqrt(eᵀ P e): the state direction that moves the position by σ
-        // along the axis and the rest of the state by its regression on it.
-        let mut e = StateVec::zeros();
-        e.fixed_rows_mut::<3>(I_P).copy_from(&axis);
-        let pe = p * e;
-        let var = e.dot(&pe);
-        if var.is_nan() || var <= 0.0 {
-            continue;
-        }
-        let v = pe / libm::sqrtf(var);
-        let spread: f32 = SPLIT_W
-            .iter()
-            .zip(SPLIT_MU.iter())
-            .map(|(w, mu)| w * mu * mu)
-            .sum();
-        // P' = P − spread·v vᵀ stays PSD because v vᵀ ≤ P (Cauchy–Schwarz) and spread < 1.
-        let p_new = p - v * v.transpose() * spread;
-        let mut parts = [c; 3];
-        for (k, part) in parts.iter_mut().enumerate() {
-            let (w, mu) = (SPLIT_W[k], SPLIT_MU[k]);
-            let mut x = c.x + v * mu;
-            for a in I_RPY..I_RPY + 3 {
-                x[a] = wrap_pi(x[a]);
-            }
-            *part = Component::new(x, &p_new, c.log_w + libm::logf(w));
-        }
-        if let Some(slot) = comps.get_mut(i) {
+        };
+        if let Some(slot) = comps.get_mut(i as usize) {
             *slot = parts[1];
         }
         // Capacity was checked above; a failed push cannot happen.
@@ -228,6 +202,46 @@ pub(crate) fn split<const N: usize>(
         count += 1;
     }
     count
+}
+
+/// The three parts of `c` if it needs splitting (see [`split`]).
+fn split_one(c: &Component, ratio: f32) -> Option<[Component; 3]> {
+    let ppp = c.block3(I_P);
+    let (axis, lambda) = principal_axis(&ppp);
+    let range = Vec3::new(c.x[I_P], c.x[I_P + 1], c.x[I_P + 2]).norm();
+    let sigma = libm::sqrtf(lambda.max(0.0));
+    // Never split below 2 cm: the point-dipole model itself is not better than that.
+    if sigma <= ratio * range || sigma < 0.02 {
+        return None;
+    }
+    let p = c.p();
+    // v = P e / sqrt(eᵀ P e): the state direction that moves the position by σ
+    // along the axis and the rest of the state by its regression on it.
+    let mut e = StateVec::zeros();
+    e.fixed_rows_mut::<3>(I_P).copy_from(&axis);
+    let pe = p * e;
+    let var = e.dot(&pe);
+    if var.is_nan() || var <= 0.0 {
+        return None;
+    }
+    let v = pe / libm::sqrtf(var);
+    let spread: f32 = SPLIT_W
+        .iter()
+        .zip(SPLIT_MU.iter())
+        .map(|(w, mu)| w * mu * mu)
+        .sum();
+    // P' = P − spread·v vᵀ stays PSD because v vᵀ ≤ P (Cauchy–Schwarz) and spread < 1.
+    let p_new = p - v * v.transpose() * spread;
+    let mut parts = [*c; 3];
+    for (k, part) in parts.iter_mut().enumerate() {
+        let (w, mu) = (SPLIT_W[k], SPLIT_MU[k]);
+        let mut x = c.x + v * mu;
+        for a in I_RPY..I_RPY + 3 {
+            x[a] = wrap_pi(x[a]);
+        }
+        *part = Component::new(x, &p_new, c.log_w + libm::logf(w));
+    }
+    Some(parts)
 }
 
 /// Unit principal eigenvector and eigenvalue of a symmetric PSD 3×3 matrix (power

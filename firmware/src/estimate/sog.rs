@@ -11,10 +11,13 @@
 //! # Per step (IROS Algorithm 1)
 //! For every Gaussian: predict by augmenting the displacement, EKF update with the
 //! pulse (sign chosen per component), compose into `G_k`
-//! ([`super::gaussian::step_gaussian`]); then normalize the weights in the log domain
-//! (eq. 17), check divergence, prune, merge near-duplicates and split where needed.
+//! ([`super::gaussian::step_gaussian`]), then (robocentric mode, beyond the paper) a
+//! linear update of the orientation with the IMU's absolute attitude of `R_k`
+//! ([`super::gaussian::attitude_update`]); then normalize the weights in the log domain
+//! (eq. 17), check divergence, prune, merge near-duplicates and split where needed
+//! (heaviest components first).
 
-use super::gaussian::{Component, step_gaussian};
+use super::gaussian::{Component, attitude_update, step_gaussian};
 use super::init::initialize;
 use super::mixture::{merge, moment_mean, normalize, position_moments, prune, split};
 use super::model::{FIELD_SCALE, I_RPY, I_S, MOMENT_SCALE, MotionMat, MotionVec};
@@ -181,6 +184,10 @@ impl<const N: usize> Estimator for SogFilter<N> {
             (motion.cov + motion.cov.transpose()) * 0.5
         };
         let r_var = self.noise_var(&z);
+        // Absolute attitude of R_k (see `attitude_update`); with a known trajectory the
+        // orientation is already exact.
+        let fuse_attitude = !self.exact_motion();
+        let att_r = (attitude.cov + attitude.cov.transpose()) * 0.5;
 
         let mut best_d2 = f32::INFINITY;
         let mut dropped = 0u16;
@@ -189,9 +196,18 @@ impl<const N: usize> Estimator for SogFilter<N> {
             let Some(c) = self.comps.get(i).copied() else {
                 break;
             };
-            match step_gaussian(&c.x, &c.p(), &u, &q, &z, r_var) {
+            let stepped = step_gaussian(&c.x, &c.p(), &u, &q, &z, r_var).and_then(|(x, p, inn)| {
+                if fuse_attitude {
+                    attitude_update(&x, &p, &attitude.rpy, &att_r).map(|(x, p)| (x, p, inn))
+                } else {
+                    Ok((x, p, inn))
+                }
+            });
+            match stepped {
                 Ok((x, p, inn)) => {
                     best_d2 = best_d2.min(inn.d2);
+                    // The weight takes the pulse's likelihood only (eq. 17); see
+                    // `attitude_update` for why the attitude's is left out.
                     if let Some(slot) = self.comps.get_mut(i) {
                         *slot = Component::new(x, &p, c.log_w + inn.log_lik);
                     }
