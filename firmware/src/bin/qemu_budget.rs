@@ -60,7 +60,9 @@ fn main() -> ! {
     stack::paint();
     let Some(peripherals) = cortex_m::Peripherals::take() else {
         debug::exit(debug::EXIT_FAILURE);
-        loop {}
+        loop {
+            cortex_m::asm::wfi();
+        }
     };
     let mut counter = InstructionCounter::start(peripherals.SYST);
 
