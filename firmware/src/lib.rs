@@ -19,8 +19,14 @@
 //!   pulse, transmitter separation.
 //! - [`motion`]: attitude filter, step detection and pedestrian dead reckoning (Kleiner et
 //!   al. eq. 1–3), the displacement between pulses with its covariance (IROS 2006 eq. 4).
+//! - [`session_log`]: the session-log writer (spec `arva-session` v1) the board streams.
 //! - [`estimate`]: the [`estimate::Estimator`] trait and the robocentric Sum-of-Gaussians
 //!   filter [`estimate::SogFilter`] (IROS 2006 Algorithm 1; ICRA 2006 known trajectory).
+//! - [`guidance`]: search control (IROS 2006 §III-C, ICRA 2006 §V-D): flux line, then the
+//!   mixture mean, fine search and "probe here".
+//! - [`app`]: the application state machine [`app::Receiver`] that owns the pipeline.
+//! - [`display`]: draws the [`app::DisplayModel`] on any 128×64 monochrome
+//!   `embedded-graphics` target.
 #![cfg_attr(not(test), no_std)]
 #![deny(missing_docs)]
 #![cfg_attr(
@@ -28,12 +34,16 @@
     deny(clippy::unwrap_used, clippy::expect_used, clippy::panic)
 )]
 
+pub mod app;
 pub mod dipole;
+pub mod display;
 pub mod drivers;
 pub mod estimate;
 pub mod frame;
 pub mod frontend;
+pub mod guidance;
 pub mod motion;
+pub mod session_log;
 
 /// The linear-algebra crate used in this crate's public API, re-exported so that users
 /// do not end up with two versions of nalgebra.

@@ -4,6 +4,9 @@
 
 pub mod accuracy;
 pub mod budget_data;
+pub mod bus;
+pub mod closed_loop;
+pub mod demo;
 pub mod field_map;
 pub mod inspect;
 pub mod jet;
@@ -13,6 +16,7 @@ pub mod replay;
 pub mod rescuer;
 pub mod routes;
 pub mod scenario;
+pub mod sensing_report;
 pub mod sensors;
 pub mod session;
 pub mod simulate;

@@ -2,7 +2,7 @@
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 use hal_sim::receiver_config::ReceiverConfig;
-use hal_sim::{accuracy, budget_data, field_map, inspect, replay, session, simulate};
+use hal_sim::{accuracy, budget_data, demo, field_map, inspect, replay, session, simulate};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
@@ -44,6 +44,14 @@ enum Command {
     /// Write the recorded estimator steps that the on-target budget binary replays under
     /// QEMU (a Rust source of constants).
     BudgetData(budget_data::Args),
+    /// Run one seeded closed-loop rescue with the firmware's application in the loop:
+    /// the receiver's screen live in the terminal, then a PNG plot of the search and of
+    /// the final screen.
+    Demo(demo::Args),
+    /// Sensing at the bus level (emulated chips → firmware drivers → DSP and motion):
+    /// motion errors, bus vs measurement pulses, estimator error after replay; a markdown
+    /// report.
+    SensingReport(hal_sim::sensing_report::Args),
 }
 
 fn read_log(path: &Path) -> Result<session::Session> {
@@ -83,5 +91,7 @@ fn main() -> Result<()> {
         Command::FieldMap(args) => field_map::run(&args, &mut stdout.lock()),
         Command::Accuracy(args) => accuracy::run(&args, &mut stdout.lock()),
         Command::BudgetData(args) => budget_data::run(&args),
+        Command::Demo(args) => demo::run(&args, &mut stdout.lock()),
+        Command::SensingReport(args) => hal_sim::sensing_report::run(&args, &mut stdout.lock()),
     }
 }

@@ -49,6 +49,12 @@ pub struct Args {
     /// Transmitter moment range MIN,MAX in A·m² (default 3e-3,3e-2).
     #[arg(long, num_args = 2, value_delimiter = ',')]
     pub moment_range: Option<Vec<f64>>,
+    /// Bus level: generate the log through emulated chips (ADS131M04 antenna ADC, BMI160
+    /// and LSM303AGR IMU) read by the firmware's drivers, and the firmware's pulse DSP,
+    /// instead of the measurement-level sensor models. Pulses are then always
+    /// sign-ambiguous; truth records follow the DSP's pulse times.
+    #[arg(long)]
+    pub bus: bool,
     /// Print nothing on stdout.
     #[arg(long)]
     pub quiet: bool,
@@ -128,7 +134,11 @@ pub fn run(args: &Args, out: &mut impl Write) -> Result<()> {
     for k in 0..args.count {
         let seed = args.seed.wrapping_add(k);
         let cfg = args.config(seed);
-        let sim = simulate(&cfg);
+        let sim = if args.bus {
+            crate::bus::run::simulate_bus_default(&cfg)?.sim
+        } else {
+            simulate(&cfg)
+        };
         let dir = if args.count == 1 {
             args.out.clone()
         } else {

@@ -1,25 +1,26 @@
-//! The firmware's pipeline behind `replay`: IMU samples → attitude and pedestrian dead
-//! reckoning (`firmware::motion`) → displacement and attitude per pulse → the SOGs
-//! filter (`firmware::estimate`). Exactly the firmware's code, fed from a log.
+//! The firmware's pipeline behind `replay`: the application state machine
+//! [`firmware::app::Receiver`] (IMU samples → attitude and pedestrian dead reckoning →
+//! displacement and attitude per pulse → SOGs filter → search control → display model),
+//! fed from a log. Exactly the firmware's code; the replay line carries the display's
+//! arrow and status word.
 use crate::receiver_config::ReceiverConfig;
 use crate::replay::{Estimator, ReplayLine, VictimEstimate};
 use crate::session::{Header, Imu, Pulse};
 use crate::world::earth_field_ut;
 use firmware::Vec3;
-use firmware::estimate::{self, Attitude, DefaultSog, Estimator as _, SogConfig};
-use firmware::motion::{Motion, MotionConfig, MotionError};
+use firmware::app::{AppConfig, Receiver};
+use firmware::estimate::SogConfig;
+use firmware::motion::MotionConfig;
 
 /// Earth field assumed when the header gives none: 48 µT at 63° inclination.
 const DEFAULT_EARTH: (f64, f64) = (48.0, 63.0);
 
-/// The firmware's motion + SOGs pipeline as a replay [`Estimator`].
+/// The firmware's application as a replay [`Estimator`].
 pub struct SogReplay {
-    motion: Motion,
-    filter: Box<DefaultSog>,
+    /// Boxed: the receiver holds the ≈ 63 KB filter.
+    receiver: Box<Receiver>,
     /// Log time of the first record: the firmware runs on times relative to it (f32).
     t0: Option<f64>,
-    /// Pulses the filter refused (bad input), reported on stderr at the end.
-    refused: usize,
 }
 
 /// The filter configuration a receiver with `receiver` settings uses.
@@ -36,25 +37,32 @@ pub fn sog_config(receiver: &ReceiverConfig) -> SogConfig {
     }
 }
 
+/// The application configuration for a log with `header` and `receiver` settings.
+pub fn app_config(header: &Header, receiver: &ReceiverConfig) -> AppConfig {
+    let earth = header
+        .earth_field_ut
+        .unwrap_or_else(|| earth_field_ut(DEFAULT_EARTH.0, DEFAULT_EARTH.1));
+    let step = receiver.pdr.as_ref().map(|p| p.step_length_m as f32);
+    let earth = Vec3::new(earth[0] as f32, earth[1] as f32, earth[2] as f32);
+    let mut motion = MotionConfig::new(earth, step);
+    motion.imu_hz = header.imu_hz as f32;
+    let mut cfg = AppConfig::new(earth, step);
+    cfg.motion = motion;
+    cfg.sog = sog_config(receiver);
+    cfg.guidance.receiver_height_m = cfg.sog.receiver_height;
+    cfg
+}
+
 impl SogReplay {
     /// A pipeline for a log with `header`, configured from `receiver`; an error when the
     /// receiver configuration is inconsistent (e.g. `m_min > m_max`).
     pub fn new(header: &Header, receiver: &ReceiverConfig) -> anyhow::Result<Self> {
-        let earth = header
-            .earth_field_ut
-            .unwrap_or_else(|| earth_field_ut(DEFAULT_EARTH.0, DEFAULT_EARTH.1));
-        let step = receiver.pdr.as_ref().map(|p| p.step_length_m as f32);
-        let earth = Vec3::new(earth[0] as f32, earth[1] as f32, earth[2] as f32);
-        let mut cfg = MotionConfig::new(earth, step);
-        cfg.imu_hz = header.imu_hz as f32;
-        let filter = DefaultSog::new(sog_config(receiver)).map_err(|e| {
-            anyhow::anyhow!("receiver configuration refused by the estimator: {e:?}")
+        let receiver = Receiver::new(app_config(header, receiver)).map_err(|e| {
+            anyhow::anyhow!("receiver configuration refused by the firmware: {e:?}")
         })?;
         Ok(Self {
-            motion: Motion::new(cfg),
-            filter: Box::new(filter),
+            receiver: Box::new(receiver),
             t0: None,
-            refused: 0,
         })
     }
 
@@ -63,9 +71,14 @@ impl SogReplay {
         (t - t0) as f32
     }
 
-    /// Pulses refused by the filter so far.
+    /// Pulses refused by the firmware so far.
     pub fn refused(&self) -> usize {
-        self.refused
+        self.receiver.stats().pulses_refused as usize
+    }
+
+    /// The application (read-only).
+    pub fn receiver(&self) -> &Receiver {
+        &self.receiver
     }
 }
 
@@ -77,48 +90,36 @@ impl Estimator for SogReplay {
     fn on_imu(&mut self, imu: &Imu) {
         let t = self.rel(imu.t);
         let mag = imu.mag.as_ref().map(v3);
-        let result = self
-            .motion
-            .on_imu_sample(t, &v3(&imu.acc), &v3(&imu.gyr), mag.as_ref());
-        if let Err(MotionError::Gap { .. }) = result {
-            // A gap in the IMU stream: restart integration from here (the displacement
-            // over the gap is inflated by the motion module).
-            let _ = self.motion.resync(t);
-            let _ = self
-                .motion
-                .on_imu_sample(t, &v3(&imu.acc), &v3(&imu.gyr), mag.as_ref());
-        }
+        // A refused sample is counted by the receiver and otherwise skipped.
+        let _ = self
+            .receiver
+            .on_imu(t, &v3(&imu.acc), &v3(&imu.gyr), mag.as_ref());
     }
 
     fn on_pulse(&mut self, pulse: &Pulse) -> ReplayLine {
         let t = self.rel(pulse.t);
-        let d = self.motion.take_displacement(t);
-        let motion = estimate::Displacement {
-            translation: d.translation,
-            rotation: d.rotation,
-            cov: d.cov,
-        };
-        let (rpy, cov) = self.motion.attitude();
-        let attitude = Attitude { rpy, cov };
-        let p = estimate::Pulse { h: v3(&pulse.h), t };
-        if self.filter.step(&motion, &attitude, &p).is_err() {
-            self.refused += 1;
-        }
+        let src = pulse.src.map(|s| u8::try_from(s).unwrap_or(u8::MAX));
+        // A refused pulse leaves the receiver unchanged: report its current state.
+        let display = self
+            .receiver
+            .on_pulse(t, &v3(&pulse.h), src)
+            .unwrap_or_else(|_| self.receiver.display_model());
+        let yaw = f64::from(self.receiver.motion().attitude().0.z);
         let victims = self
-            .filter
+            .receiver
             .estimate()
             .map(|e| {
                 let p = [e.p.x, e.p.y, e.p.z].map(f64::from);
                 let cov: [f64; 9] = core::array::from_fn(|i| f64::from(e.cov[(i / 3, i % 3)]));
-                VictimEstimate::new(p, cov, f64::from(rpy.z))
+                VictimEstimate::new(p, cov, yaw)
             })
             .into_iter()
             .collect();
         ReplayLine {
             t: pulse.t,
-            n_components: self.filter.len() as u32,
-            arrow_deg: None,
-            status: None,
+            n_components: self.receiver.filter().len() as u32,
+            arrow_deg: display.arrow_deg.map(f64::from),
+            status: Some(display.status.as_str().to_string()),
             victims,
         }
     }

@@ -5,5 +5,8 @@
 //!
 //! - [`ads131m04`]: TI ADS131M04, the 4-channel simultaneous-sampling 24-bit ΔΣ ADC that
 //!   digitises the three antenna coils' intermediate-frequency signals.
+//! - [`imu`]: the BMI160 accelerometer + gyroscope and the LSM303AGR magnetometer on I2C
+//!   (eldruin's `bmi160` and `lsm303agr` drivers), read in the body frame.
 
 pub mod ads131m04;
+pub mod imu;

@@ -1,0 +1,606 @@
+//! Search control: which way the rescuer should walk, from the pulses and the SOGs belief
+//! (Piniés, Tardós & Neira, IROS 2006, §III-C; Piniés & Tardós, ICRA 2006, §V-D).
+//!
+//! "Initially, the rescuer is directed to follow the direction of the magnetic flux
+//! lines. When the receiver position is far enough (in terms of Mahalanobis distance)
+//! from the mean of the SOGs distribution, the rescuer is directed towards this mean."
+//!
+//! The state machine, one [`Guidance::update`] per received pulse:
+//! - [`Status::FluxLine`]: the arrow is the horizontal projection of the measured field
+//!   in `G_k`. Its sign is not measured (sign-ambiguous pulses); it is chosen to agree
+//!   with the previous walking direction, and flipped when |H| has not grown over the
+//!   last [`GuidanceConfig::flip_after_m`] walked — the classical directional search
+//!   (ICRA 2006 §II-A: "if after following the initial direction along 5 m the signal
+//!   decreases, the rescuer must turn and follow the opposite direction").
+//! - [`Status::Localized`]: once the receiver lies outside the belief's 3σ ellipse
+//!   (horizontal squared Mahalanobis distance of the receiver from the mixture mean,
+//!   IROS eq. 18, above [`GuidanceConfig::go_to_mean_d2`]) and the mixture is
+//!   concentrated (its largest horizontal σ below the distance to its mean), the arrow
+//!   points at the mean, and stays there (latched) until the estimator re-initializes.
+//!   Within [`GuidanceConfig::fine_search_m`] the depth is shown (the fine search).
+//!   Standing over the mean while the belief is still wider than the probe radius, the
+//!   arrow alternates to either side of the mean along the belief's most uncertain
+//!   horizontal axis (the classical bracketing): a single spot cannot separate the
+//!   transmitter's position from its moment.
+//! - [`Status::Probe`]: the horizontal distance to the mean is within
+//!   `max(probe_radius, σ_h)` and `3σ_h ≤ probe_radius` on
+//!   [`GuidanceConfig::probe_confirm_pulses`] consecutive pulses (or the receiver has
+//!   bracketed the mean for [`GuidanceConfig::probe_timeout_pulses`] pulses): probe here.
+//! - [`Status::NoSignal`]: no usable pulse.
+//!
+//! Angles: bearings in `G` are measured from north toward west (counter-clockwise seen
+//! from above, like yaw); the arrow is the bearing minus the device's yaw, positive to
+//! the left, in (-π, π]. Everything is `f32`, trig through `libm`.
+
+use crate::Vec3;
+use crate::estimate::VictimEstimate;
+use crate::frame::wrap_pi;
+
+/// What the display says the rescuer should do.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Status {
+    /// No usable pulse (yet, or for too long).
+    #[default]
+    NoSignal,
+    /// Follow the flux line (the belief is not trusted yet).
+    FluxLine,
+    /// Walk to the estimated victim position.
+    Localized,
+    /// Probe here.
+    Probe,
+}
+
+impl Status {
+    /// The status word of the session-log replay output (`searching`, `flux-line`,
+    /// `localized`, `probe`).
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            Status::NoSignal => "searching",
+            Status::FluxLine => "flux-line",
+            Status::Localized => "localized",
+            Status::Probe => "probe",
+        }
+    }
+}
+
+/// Thresholds of the search control.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GuidanceConfig {
+    /// Horizontal squared Mahalanobis distance of the receiver from the mixture mean above
+    /// which the rescuer is sent to the mean (IROS §III-C). 9 = outside the 3σ ellipse.
+    pub go_to_mean_d2: f32,
+    /// The mixture counts as concentrated when its largest horizontal σ is at most this
+    /// fraction of the horizontal distance to its mean.
+    pub concentrated_ratio: f32,
+    /// Flux-line mode: flip the walking direction when |H| has not exceeded its best value
+    /// over this distance walked (m), the classical 5 m rule.
+    pub flip_after_m: f32,
+    /// Horizontal distance (m) below which the fine search (depth display) starts.
+    pub fine_search_m: f32,
+    /// Probe radius (m): "probe here" needs `3σ_h` at most this.
+    pub probe_radius_m: f32,
+    /// Consecutive pulses on which the probe condition must hold.
+    pub probe_confirm_pulses: u8,
+    /// Pulses spent over the mean (within the probe radius) after which the rescuer is
+    /// told to probe even if the belief is still wider than the probe radius.
+    pub probe_timeout_pulses: u8,
+    /// Offset (m) to either side of the mean when bracketing it (about one step).
+    pub bracket_m: f32,
+    /// Receiver height above the snow (m): the displayed depth is the burial depth below
+    /// the surface, `−p_z − receiver_height`.
+    pub receiver_height_m: f32,
+}
+
+impl Default for GuidanceConfig {
+    fn default() -> Self {
+        Self {
+            go_to_mean_d2: 9.0,
+            concentrated_ratio: 1.0,
+            flip_after_m: 5.0,
+            fine_search_m: 3.0,
+            probe_radius_m: 0.3,
+            probe_confirm_pulses: 2,
+            probe_timeout_pulses: 16,
+            bracket_m: 0.5,
+            receiver_height_m: 1.0,
+        }
+    }
+}
+
+/// What the search control needs from one pulse.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GuidanceInput {
+    /// The pulse's field vector rotated into `G_k` (A/m, overall sign arbitrary), or
+    /// `None` when the pulse gave no vector.
+    pub h_g: Option<Vec3>,
+    /// Distance walked since the previous pulse (m).
+    pub walked_m: f32,
+    /// Device yaw at the pulse (rad, from north toward west).
+    pub yaw: f32,
+    /// The estimator's belief after this pulse.
+    pub estimate: Option<VictimEstimate>,
+    /// The estimator rebuilt its mixture on this pulse: forget the latched target.
+    pub reinitialized: bool,
+}
+
+/// The search control's answer for one pulse.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct GuidanceOutput {
+    /// Status word.
+    pub status: Status,
+    /// Direction to walk in `G` (rad, from north toward west), if any.
+    pub bearing: Option<f32>,
+    /// That direction relative to the device's yaw at the pulse (rad, positive left,
+    /// in (-π, π]).
+    pub arrow: Option<f32>,
+    /// Straight-line (3-D) distance to the mixture mean (m), once localized.
+    pub distance_m: Option<f32>,
+    /// Horizontal distance to the mixture mean (m), once localized.
+    pub horizontal_m: Option<f32>,
+    /// Burial depth below the snow surface (m), in the fine search.
+    pub depth_m: Option<f32>,
+    /// Horizontal distance (m) to walk along the arrow: to the mean, or to the bracketing
+    /// point beside it (the fine search's "steps to go").
+    pub walk_m: Option<f32>,
+    /// Largest horizontal standard deviation of the belief (m), once initialized.
+    pub sigma_h_m: Option<f32>,
+}
+
+/// The search-control state machine (IROS §III-C).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Guidance {
+    cfg: GuidanceConfig,
+    /// Previous flux-line walking direction in `G` (unit, horizontal).
+    flux_dir: Option<[f32; 2]>,
+    /// Largest |H| since the last flip, and the distance walked since it was seen.
+    best_h: f32,
+    walked_since_best: f32,
+    /// Latched: the belief has been trusted (walking to the mean).
+    localized: bool,
+    /// Consecutive pulses satisfying the probe condition.
+    probe_count: u8,
+    /// Pulses spent over the mean (bracketing).
+    over_mean: u8,
+    /// Side of the next bracketing offset (±1).
+    bracket_side: f32,
+    /// Latched probe.
+    probing: bool,
+}
+
+impl Guidance {
+    /// A search control with thresholds `cfg`, starting in flux-line mode.
+    pub const fn new(cfg: GuidanceConfig) -> Self {
+        Self {
+            cfg,
+            flux_dir: None,
+            best_h: 0.0,
+            walked_since_best: 0.0,
+            localized: false,
+            probe_count: 0,
+            over_mean: 0,
+            bracket_side: 1.0,
+            probing: false,
+        }
+    }
+
+    /// The thresholds in use.
+    pub fn config(&self) -> &GuidanceConfig {
+        &self.cfg
+    }
+
+    /// Whether the rescuer is being sent to the mixture mean (latched).
+    pub fn is_localized(&self) -> bool {
+        self.localized
+    }
+
+    /// Forgets the search (a new search starts in flux-line mode).
+    pub fn reset(&mut self) {
+        *self = Self::new(self.cfg);
+    }
+
+    /// One pulse: the new arrow and status. Non-finite inputs are treated as absent.
+    pub fn update(&mut self, input: &GuidanceInput) -> GuidanceOutput {
+        let walked = if input.walked_m.is_finite() {
+            input.walked_m.max(0.0)
+        } else {
+            0.0
+        };
+        let yaw = if input.yaw.is_finite() {
+            input.yaw
+        } else {
+            0.0
+        };
+        let h_g = input.h_g.filter(|h| h.iter().all(|v| v.is_finite()));
+        let est = input
+            .estimate
+            .filter(|e| e.p.iter().all(|v| v.is_finite()) && e.cov.iter().all(|v| v.is_finite()));
+        if input.reinitialized || est.is_none() {
+            self.localized = false;
+            self.probing = false;
+            self.probe_count = 0;
+            self.over_mean = 0;
+        }
+        // Classical flux-line bookkeeping runs in every mode, so that a fallback from
+        // the mean to the flux line starts with a sensible direction.
+        let flux = h_g.and_then(|h| self.flux_line(&h, walked, yaw));
+
+        let mut out = GuidanceOutput::default();
+        if let Some(e) = &est {
+            let (_, sigma_h) = horizontal_axis(&e.cov);
+            out.sigma_h_m = Some(sigma_h);
+            let dist_h = libm::sqrtf(e.p.x * e.p.x + e.p.y * e.p.y);
+            // IROS §III-C: trust the mean once the receiver is far from it in Mahalanobis
+            // distance and the belief is concentrated.
+            if !self.localized
+                && horizontal_mahalanobis2(e) >= self.cfg.go_to_mean_d2
+                && sigma_h <= self.cfg.concentrated_ratio * dist_h
+            {
+                self.localized = true;
+            }
+        }
+        match (&est, self.localized) {
+            (Some(e), true) => self.walk_to_mean(e, yaw, &mut out),
+            _ => {
+                if let Some(b) = flux {
+                    out.status = Status::FluxLine;
+                    out.bearing = Some(b);
+                    out.arrow = Some(relative_arrow(b, yaw));
+                }
+            }
+        }
+        out
+    }
+
+    /// Flux-line direction in `G` (rad) for the field `h` (ICRA §II-A, IROS §III-C).
+    fn flux_line(&mut self, h: &Vec3, walked: f32, yaw: f32) -> Option<f32> {
+        let n = h.norm();
+        // Classical rule: if |H| has not grown over the last `flip_after_m`, turn around.
+        if n > self.best_h {
+            self.best_h = n;
+            self.walked_since_best = 0.0;
+        } else {
+            self.walked_since_best += walked;
+            if self.walked_since_best > self.cfg.flip_after_m {
+                if let Some(d) = self.flux_dir.as_mut() {
+                    d[0] = -d[0];
+                    d[1] = -d[1];
+                }
+                self.best_h = n;
+                self.walked_since_best = 0.0;
+            }
+        }
+        // The previous walking direction (or, first, the device's heading) picks the sign.
+        let reference = self.flux_dir.unwrap_or([libm::cosf(yaw), libm::sinf(yaw)]);
+        let d = flux_direction(h, &reference)?;
+        self.flux_dir = Some(d);
+        Some(libm::atan2f(d[1], d[0]))
+    }
+
+    /// Localized: walk to the mean, bracket it, or probe.
+    fn walk_to_mean(&mut self, e: &VictimEstimate, yaw: f32, out: &mut GuidanceOutput) {
+        let c = &self.cfg;
+        let (axis, sigma_h) = horizontal_axis(&e.cov);
+        let dist_h = libm::sqrtf(e.p.x * e.p.x + e.p.y * e.p.y);
+        out.distance_m = Some(e.p.norm());
+        out.horizontal_m = Some(dist_h);
+        if dist_h <= c.fine_search_m {
+            out.depth_m = Some((-e.p.z - c.receiver_height_m).max(0.0));
+        }
+        let sure = 3.0 * sigma_h <= c.probe_radius_m;
+        let over = dist_h <= c.probe_radius_m.max(sigma_h);
+        if over && sure {
+            self.probe_count = self.probe_count.saturating_add(1);
+        } else {
+            self.probe_count = 0;
+        }
+        if over {
+            self.over_mean = self.over_mean.saturating_add(1);
+        } else if dist_h > 2.0 * c.bracket_m + c.probe_radius_m {
+            self.over_mean = 0;
+        }
+        if self.probe_count >= c.probe_confirm_pulses || self.over_mean >= c.probe_timeout_pulses {
+            self.probing = true;
+        }
+        let mut target = [e.p.x, e.p.y];
+        if self.probing {
+            out.status = Status::Probe;
+        } else {
+            out.status = Status::Localized;
+            if over && !sure {
+                // Bracket the mean along its most uncertain horizontal axis.
+                self.bracket_side = -self.bracket_side;
+                target[0] += axis[0] * c.bracket_m * self.bracket_side;
+                target[1] += axis[1] * c.bracket_m * self.bracket_side;
+            }
+        }
+        let b = libm::atan2f(target[1], target[0]);
+        let walk = libm::sqrtf(target[0] * target[0] + target[1] * target[1]);
+        out.walk_m = Some(if self.probing { 0.0 } else { walk });
+        out.bearing = Some(b);
+        out.arrow = Some(relative_arrow(b, yaw));
+    }
+}
+
+/// Unit horizontal flux-line direction in `G` for the field `h`, with the sign that
+/// agrees with `reference` (a horizontal direction); `None` when the field is vertical.
+pub fn flux_direction(h: &Vec3, reference: &[f32; 2]) -> Option<[f32; 2]> {
+    let n = libm::sqrtf(h.x * h.x + h.y * h.y);
+    // A field within ~0.5° of vertical has no usable horizontal direction.
+    if !n.is_finite() || n <= 1e-2 * h.norm() || n == 0.0 {
+        return None;
+    }
+    let (x, y) = (h.x / n, h.y / n);
+    if x * reference[0] + y * reference[1] < 0.0 {
+        Some([-x, -y])
+    } else {
+        Some([x, y])
+    }
+}
+
+/// Squared horizontal Mahalanobis distance of the receiver (the origin of `G_k`) from the
+/// mixture mean, with the mixture covariance of IROS eq. 18 (0 if it is singular).
+pub fn horizontal_mahalanobis2(est: &VictimEstimate) -> f32 {
+    let c = &est.cov;
+    let (a, b, d) = (c[(0, 0)], c[(0, 1)], c[(1, 1)]);
+    let det = a * d - b * b;
+    if det.is_nan() || det <= 0.0 {
+        return 0.0;
+    }
+    let (x, y) = (est.p.x, est.p.y);
+    let m = (d * x * x - 2.0 * b * x * y + a * y * y) / det;
+    if m.is_finite() { m } else { 0.0 }
+}
+
+/// Unit principal axis (horizontal, `G`) and largest standard deviation (m) of the
+/// horizontal block of the covariance `cov`.
+pub fn horizontal_axis(cov: &crate::Mat3) -> ([f32; 2], f32) {
+    let (a, b, c) = (cov[(0, 0)], cov[(0, 1)], cov[(1, 1)]);
+    let half = 0.5 * (a - c);
+    let lmax = 0.5 * (a + c) + libm::sqrtf(half * half + b * b);
+    // Eigenvector of [[a, b], [b, c]] for lmax.
+    let (vx, vy) = if libm::fabsf(b) > 1e-12 {
+        (lmax - c, b)
+    } else if a >= c {
+        (1.0, 0.0)
+    } else {
+        (0.0, 1.0)
+    };
+    let n = libm::sqrtf(vx * vx + vy * vy);
+    let axis = if n > 0.0 && n.is_finite() {
+        [vx / n, vy / n]
+    } else {
+        [1.0, 0.0]
+    };
+    let sigma = libm::sqrtf(lmax.max(0.0));
+    (axis, if sigma.is_finite() { sigma } else { f32::MAX })
+}
+
+/// A bearing in `G` (rad) relative to the device's yaw: positive to the left, (-π, π].
+pub fn relative_arrow(bearing: f32, yaw: f32) -> f32 {
+    wrap_pi(bearing - yaw)
+}
+
+/// Radians to degrees in (-180, 180] (the session-log replay's `arrow_deg`).
+pub fn to_degrees_wrapped(a: f32) -> f32 {
+    let d = wrap_pi(a) * (180.0 / core::f32::consts::PI);
+    if d <= -180.0 { 180.0 } else { d }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::Mat3;
+    use core::f32::consts::{FRAC_PI_2, PI};
+
+    fn est(p: Vec3, sigma: f32) -> VictimEstimate {
+        VictimEstimate {
+            p,
+            cov: Mat3::from_diagonal(&Vec3::new(sigma * sigma, sigma * sigma, 0.04)),
+            moment: Vec3::new(0.0, 0.0, 0.02),
+            scale: 1.0,
+            scale_sigma: 0.02,
+            rpy: Vec3::zeros(),
+            n_components: 1,
+            max_weight: 1.0,
+        }
+    }
+
+    fn input(h: Vec3, walked: f32, yaw: f32, e: Option<VictimEstimate>) -> GuidanceInput {
+        GuidanceInput {
+            h_g: Some(h),
+            walked_m: walked,
+            yaw,
+            estimate: e,
+            reinitialized: false,
+        }
+    }
+
+    #[test]
+    fn flux_sign_follows_the_heading_then_the_previous_direction() {
+        let mut g = Guidance::new(GuidanceConfig::default());
+        // Facing north, field along ±north: walk north whatever the pulse's sign.
+        let o = g.update(&input(Vec3::new(-1e-6, 0.0, 3e-7), 0.0, 0.0, None));
+        assert_eq!(o.status, Status::FluxLine);
+        assert!(o.bearing.is_some_and(|b| b.abs() < 1e-5));
+        // The next pulse with the opposite sign and slightly turned keeps going north-ish.
+        let o = g.update(&input(Vec3::new(1.1e-6, -1e-7, 0.0), 1.0, 0.3, None));
+        let b = o.bearing.unwrap_or(PI);
+        assert!(b.abs() < 0.2, "bearing {b}");
+        // Arrow relative to the device: yaw 0.3 rad, bearing ≈ -0.09 → to the right.
+        assert!(
+            o.arrow
+                .is_some_and(|a| a < 0.0 && (a - (b - 0.3)).abs() < 1e-5)
+        );
+        // Facing south first picks the southern sign.
+        let mut g = Guidance::new(GuidanceConfig::default());
+        let o = g.update(&input(Vec3::new(1e-6, 0.0, 0.0), 0.0, PI, None));
+        assert!(o.bearing.is_some_and(|b| (b.abs() - PI).abs() < 1e-5));
+    }
+
+    #[test]
+    fn flux_direction_flips_when_the_signal_falls_over_five_metres() {
+        let mut g = Guidance::new(GuidanceConfig::default());
+        let mut h = 1e-6;
+        let mut bearing = 0.0;
+        for _ in 0..7 {
+            let o = g.update(&input(Vec3::new(h, 0.0, 0.0), 1.0, 0.0, None));
+            bearing = o.bearing.unwrap_or(f32::NAN);
+            h *= 0.9; // walking away: falling signal
+        }
+        assert!(
+            (bearing.abs() - PI).abs() < 1e-5,
+            "turned around: {bearing}"
+        );
+        // A growing signal never flips.
+        let mut g = Guidance::new(GuidanceConfig::default());
+        for k in 0..20 {
+            let o = g.update(&input(
+                Vec3::new(1e-7 * (1.0 + k as f32), 0.0, 0.0),
+                1.0,
+                0.0,
+                None,
+            ));
+            assert!(o.bearing.is_some_and(|b| b.abs() < 1e-5));
+        }
+    }
+
+    #[test]
+    fn vertical_field_keeps_no_direction_and_no_signal_without_a_pulse() {
+        let mut g = Guidance::new(GuidanceConfig::default());
+        let o = g.update(&input(Vec3::new(0.0, 0.0, 1e-6), 0.0, 0.0, None));
+        assert_eq!(o.status, Status::NoSignal);
+        let o = g.update(&GuidanceInput {
+            h_g: None,
+            walked_m: 0.0,
+            yaw: 0.0,
+            estimate: None,
+            reinitialized: false,
+        });
+        assert_eq!(o, GuidanceOutput::default());
+        // NaNs are ignored rather than propagated.
+        let o = g.update(&input(
+            Vec3::new(f32::NAN, 1.0, 0.0),
+            f32::NAN,
+            f32::NAN,
+            None,
+        ));
+        assert_eq!(o.status, Status::NoSignal);
+    }
+
+    #[test]
+    fn switches_to_the_mean_when_far_in_mahalanobis_distance_and_latches() {
+        let mut g = Guidance::new(GuidanceConfig::default());
+        let h = Vec3::new(1e-6, 0.0, 0.0);
+        // Broad belief around the receiver: keep following the flux line.
+        let o = g.update(&input(
+            h,
+            1.0,
+            0.0,
+            Some(est(Vec3::new(5.0, 5.0, -2.0), 10.0)),
+        ));
+        assert_eq!(o.status, Status::FluxLine);
+        assert!(o.distance_m.is_none() && o.sigma_h_m.is_some());
+        // Concentrated and 3σ away: go to the mean (to the west = 90° left).
+        let o = g.update(&input(
+            h,
+            1.0,
+            0.0,
+            Some(est(Vec3::new(0.0, 20.0, -2.0), 2.0)),
+        ));
+        assert_eq!(o.status, Status::Localized);
+        assert!(o.arrow.is_some_and(|a| (a - FRAC_PI_2).abs() < 1e-5));
+        assert!(
+            o.distance_m
+                .is_some_and(|d| (d - 404f32.sqrt()).abs() < 1e-3)
+        );
+        assert!(o.depth_m.is_none());
+        // Latched while walking in (the receiver falls inside the ellipse).
+        let o = g.update(&input(
+            h,
+            1.0,
+            FRAC_PI_2,
+            Some(est(Vec3::new(0.0, 2.5, -2.0), 1.0)),
+        ));
+        assert_eq!(o.status, Status::Localized);
+        assert!(o.arrow.is_some_and(|a| a.abs() < 1e-5));
+        assert!(o.depth_m.is_some_and(|d| (d - 1.0).abs() < 1e-5));
+        // A re-initialized mixture drops back to the flux line.
+        let mut i = input(h, 1.0, 0.0, Some(est(Vec3::new(0.0, 2.5, -2.0), 30.0)));
+        i.reinitialized = true;
+        assert_eq!(g.update(&i).status, Status::FluxLine);
+    }
+
+    #[test]
+    fn probe_needs_a_tight_belief_right_below_for_two_pulses() {
+        let mut g = Guidance::new(GuidanceConfig::default());
+        let h = Vec3::new(1e-4, 0.0, 0.0);
+        let o = g.update(&input(
+            h,
+            1.0,
+            0.0,
+            Some(est(Vec3::new(30.0, 0.0, -2.0), 2.0)),
+        ));
+        assert_eq!(o.status, Status::Localized);
+        // Close but 0.5 m off: not yet.
+        let o = g.update(&input(
+            h,
+            1.0,
+            0.0,
+            Some(est(Vec3::new(0.5, 0.0, -2.0), 0.05)),
+        ));
+        assert_eq!(o.status, Status::Localized);
+        // Within 0.3 m and 3σ = 0.15 m: first pulse confirms, the second probes.
+        let e = Some(est(Vec3::new(0.2, 0.0, -2.2), 0.05));
+        assert_eq!(g.update(&input(h, 0.5, 0.0, e)).status, Status::Localized);
+        let o = g.update(&input(h, 0.0, 0.0, e));
+        assert_eq!(o.status, Status::Probe);
+        assert!(o.depth_m.is_some_and(|d| (d - 1.2).abs() < 1e-4));
+        assert!(o.arrow.is_some_and(|a| a.abs() < 1e-5));
+        // Latched.
+        let e = Some(est(Vec3::new(0.35, 0.0, -2.2), 0.05));
+        assert_eq!(g.update(&input(h, 0.0, 0.0, e)).status, Status::Probe);
+    }
+
+    #[test]
+    fn over_a_wide_mean_the_arrow_brackets_it_then_times_out() {
+        let cfg = GuidanceConfig::default();
+        let mut g = Guidance::new(cfg);
+        let h = Vec3::new(1e-4, 0.0, 0.0);
+        let _ = g.update(&input(
+            h,
+            1.0,
+            0.0,
+            Some(est(Vec3::new(30.0, 0.0, -2.0), 2.0)),
+        ));
+        // Over the mean (0.1 m) but σ = 0.4 m: alternate sides, no probe yet.
+        let e = Some(est(Vec3::new(0.1, 0.0, -2.0), 0.4));
+        let a = g.update(&input(h, 0.0, 0.0, e));
+        let b = g.update(&input(h, 0.0, 0.0, e));
+        assert_eq!(a.status, Status::Localized);
+        let (ba, bb) = (a.bearing.unwrap_or(0.0), b.bearing.unwrap_or(0.0));
+        assert!((wrap_pi(ba - bb).abs() - PI).abs() < 0.5, "{ba} {bb}");
+        let mut last = b.status;
+        for _ in 2..cfg.probe_timeout_pulses {
+            last = g.update(&input(h, 0.0, 0.0, e)).status;
+        }
+        assert_eq!(last, Status::Probe);
+    }
+
+    #[test]
+    fn angles_and_helpers() {
+        assert!((to_degrees_wrapped(-PI) - 180.0).abs() < 1e-4);
+        assert!((to_degrees_wrapped(FRAC_PI_2) - 90.0).abs() < 1e-4);
+        assert!((relative_arrow(0.1, 2.0 * PI + 0.2) + 0.1).abs() < 1e-5);
+        let e = est(Vec3::new(3.0, 4.0, 0.0), 1.0);
+        assert!((horizontal_mahalanobis2(&e) - 25.0).abs() < 1e-3);
+        let mut c = Mat3::zeros();
+        c[(0, 0)] = 1.0;
+        c[(1, 1)] = 1.0;
+        c[(0, 1)] = 0.5;
+        c[(1, 0)] = 0.5;
+        let (axis, s) = horizontal_axis(&c);
+        assert!((s - 1.5f32.sqrt()).abs() < 1e-5);
+        assert!((axis[0] - axis[1]).abs() < 1e-5);
+        assert!(flux_direction(&Vec3::new(0.0, 0.0, 1.0), &[1.0, 0.0]).is_none());
+    }
+}
