@@ -7,6 +7,8 @@
 //! capacity and prints, one line each:
 //! - `step <k> <instructions> <components>` per pulse,
 //! - `budget <name> <value>` for the summary figures,
+//! - `phase <name> <instructions> <calls>`: where the instructions of a second,
+//!   profiled replay went (summed over all steps; each mark costs ≈ 40 instructions),
 //! - `done` at the end; the exit status is 0 when every step succeeded.
 #![no_std]
 #![no_main]
@@ -21,7 +23,7 @@ mod stack;
 use cortex_m_rt::entry;
 use cortex_m_semihosting::{debug, hprintln};
 use firmware::estimate::{
-    Attitude, DefaultSog, Displacement, Estimator, Pulse, SOG_CAPACITY, SogConfig,
+    Attitude, DefaultSog, Displacement, Estimator, Phase, Pulse, SOG_CAPACITY, SogConfig,
 };
 use firmware::{Vec3, dipole};
 use icount::InstructionCounter;
@@ -37,9 +39,7 @@ fn replay(counter: &mut InstructionCounter) -> (u64, u64, u32, u32) {
         return (0, 0, 0, 1);
     };
     for (k, s) in budget_data::STEPS.iter().enumerate() {
-        let motion = Displacement::with_sigmas(v(s.translation), v(s.rotation), 0.04, 0.01);
-        let attitude = Attitude::with_sigmas(v(s.attitude), 0.02, 0.05);
-        let pulse = Pulse { h: v(s.h), t: s.t };
+        let (motion, attitude, pulse) = inputs(s);
         let (out, n) = counter.measure(|| filter.step(&motion, &attitude, &pulse));
         let components = filter.len();
         match out {
@@ -53,6 +53,48 @@ fn replay(counter: &mut InstructionCounter) -> (u64, u64, u32, u32) {
         hprintln!("step {} {} {}", k, n, components);
     }
     (worst, sum, steps, failures)
+}
+
+/// The recorded step `s` as estimator inputs.
+fn inputs(s: &budget_data::Step) -> (Displacement, Attitude, Pulse) {
+    let motion = Displacement::with_sigmas(v(s.translation), v(s.rotation), 0.04, 0.01);
+    let attitude = Attitude::with_sigmas(v(s.attitude), 0.02, 0.05);
+    (motion, attitude, Pulse { h: v(s.h), t: s.t })
+}
+
+const PHASES: [(Phase, &str); 6] = [
+    (Phase::Setup, "setup"),
+    (Phase::Update, "component_update"),
+    (Phase::Store, "store"),
+    (Phase::Prune, "normalize_prune"),
+    (Phase::Merge, "merge"),
+    (Phase::Split, "split"),
+];
+
+/// Replays every step again with [`DefaultSog::step_marked`] and prints the
+/// instructions per phase, summed over the run.
+fn profile(counter: &mut InstructionCounter) {
+    let Ok(mut filter) = DefaultSog::new(SogConfig::default()) else {
+        return;
+    };
+    let mut totals = [(0u64, 0u32); PHASES.len()];
+    for s in budget_data::STEPS.iter() {
+        let (motion, attitude, pulse) = inputs(s);
+        let mut last = counter.instructions();
+        let _ = filter.step_marked(&motion, &attitude, &pulse, |phase| {
+            let now = counter.instructions();
+            if let Some(k) = PHASES.iter().position(|p| p.0 == phase)
+                && let Some(t) = totals.get_mut(k)
+            {
+                t.0 += now.saturating_sub(last);
+                t.1 += 1;
+            }
+            last = counter.instructions();
+        });
+    }
+    for ((_, name), (n, calls)) in PHASES.iter().zip(totals.iter()) {
+        hprintln!("phase {} {} {}", name, n, calls);
+    }
 }
 
 #[entry]
@@ -80,6 +122,7 @@ fn main() -> ! {
     hprintln!("budget failures {}", failures);
     hprintln!("budget stack_high_water {}", stack::high_water());
     hprintln!("budget stack_size {}", stack::size());
+    profile(&mut counter);
     hprintln!("done");
     debug::exit(if failures == 0 && steps > 0 {
         debug::EXIT_SUCCESS

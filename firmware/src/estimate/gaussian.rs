@@ -1,8 +1,12 @@
 //! One Gaussian of the mixture and its EKF step: prediction by augmenting the
 //! displacement, update, and composition (IROS 2006 Algorithm 1, eq. 10–15).
 
-use super::model::{I_RPY, MotionMat, MotionVec, NU, NX, StateMat, StateVec, compose, measure};
+use super::model::{
+    I_RPY, MotionMat, MotionVec, NU, NX, StateMat, StateVec, compose, compose_rot, measure,
+    measure_rot, rpy_of,
+};
 use super::packed;
+use super::rot::Rot;
 use crate::frame::wrap_pi;
 use crate::{Mat3, Vec3};
 use nalgebra::SMatrix;
@@ -120,6 +124,161 @@ pub(crate) enum ComponentFailure {
     NonFinite,
 }
 
+/// What every component's step shares within one pulse: the displacement, its
+/// covariance and rotation `R(ΔΨ)` (evaluated once per pulse), and the pulse.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct StepInput {
+    /// Displacement `u = [Δp; ΔΨ]`.
+    pub u: MotionVec,
+    /// Its covariance `Q`.
+    pub q: MotionMat,
+    /// `R(ΔΨ)` and its partials at `u`.
+    rb: Rot,
+    /// Pulse (µA/m in `R_k`).
+    pub z: Vec3,
+    /// Measurement noise variance per axis (ICRA eq. 10), in (µA/m)².
+    pub r_var: f32,
+}
+
+impl StepInput {
+    /// The shared inputs of one pulse.
+    pub fn new(u: &MotionVec, q: &MotionMat, z: &Vec3, r_var: f32) -> Self {
+        Self {
+            u: *u,
+            q: *q,
+            rb: Rot::new(&Vec3::new(u[3], u[4], u[5])),
+            z: *z,
+            r_var,
+        }
+    }
+}
+
+/// Smallest conditional variance, as a fraction of the variance, that
+/// [`well_conditioned`] accepts from the short-form covariance updates.
+const MIN_VARIANCE_RATIO: f32 = 1e-6;
+
+/// Whether a symmetric matrix is positive definite with margin: every pivot of its
+/// `LDLᵀ` factorization (the variance of a state given the ones before it) is at least
+/// [`MIN_VARIANCE_RATIO`] of that state's variance (false on NaN). ≈ 200 multiply-adds.
+fn well_conditioned(p: &StateMat) -> bool {
+    // Right-looking LDLᵀ on a copy, lower triangle only: column j is eliminated from
+    // the trailing matrix as soon as its pivot is known (165 multiply-adds in all).
+    let mut a = *p;
+    for j in 0..NX {
+        let dj = a[(j, j)];
+        if dj.is_nan() || dj <= MIN_VARIANCE_RATIO * p[(j, j)] {
+            return false;
+        }
+        let inv = 1.0 / dj;
+        for i in (j + 1)..NX {
+            let l = a[(i, j)] * inv;
+            for k in i..NX {
+                a[(k, i)] -= l * a[(k, j)];
+            }
+        }
+    }
+    true
+}
+
+/// One component's whole step: [`step_gaussian`] then, when `attitude` is given,
+/// [`attitude_update`] with `(Ψ measured, its covariance)`. Both use the short-form
+/// covariance update `P − V Vᵀ`; when the result is not [`well_conditioned`] (the
+/// subtraction lost too many digits in `f32`), the step is redone in the Joseph form
+/// ([`step_gaussian_joseph`], [`attitude_update_joseph`]), a sum of PSD terms.
+pub(crate) fn step_component(
+    inp: &StepInput,
+    x: &StateVec,
+    p: &StateMat,
+    attitude: Option<(&Vec3, &Mat3)>,
+) -> Result<(StateVec, StateMat, Innovation), ComponentFailure> {
+    if let Ok((x1, p1, inn)) = step_gaussian(inp, x, p) {
+        let out = match attitude {
+            Some((z, r)) => attitude_update(&x1, &p1, z, r).map(|(x2, p2)| (x2, p2, inn)),
+            None => Ok((x1, p1, inn)),
+        };
+        if let Ok(out) = out
+            && well_conditioned(&out.1)
+        {
+            return Ok(out);
+        }
+    }
+    step_component_joseph(inp, x, p, attitude)
+}
+
+/// [`step_component`] in the Joseph form (the rare fallback, kept out of line).
+#[cold]
+#[inline(never)]
+fn step_component_joseph(
+    inp: &StepInput,
+    x: &StateVec,
+    p: &StateMat,
+    attitude: Option<(&Vec3, &Mat3)>,
+) -> Result<(StateVec, StateMat, Innovation), ComponentFailure> {
+    let (x1, p1, inn) = step_gaussian_joseph(x, p, &inp.u, &inp.q, &inp.z, inp.r_var)?;
+    match attitude {
+        Some((z, r)) => attitude_update_joseph(&x1, &p1, z, r).map(|(x2, p2)| (x2, p2, inn)),
+        None => Ok((x1, p1, inn)),
+    }
+}
+
+/// `a − v vᵀ`, symmetric by construction (upper triangle computed, then mirrored).
+fn sub_outer<const C: usize>(a: &StateMat, v: &SMatrix<f32, NX, C>) -> StateMat {
+    let mut out = *a;
+    for j in 0..NX {
+        for i in 0..=j {
+            let d: f32 = (0..C).map(|k| v[(i, k)] * v[(j, k)]).sum();
+            let e = 0.5 * (a[(i, j)] + a[(j, i)]) - d;
+            out[(i, j)] = e;
+            out[(j, i)] = e;
+        }
+    }
+    out
+}
+
+/// Sign choice and log-likelihood of a pulse (see [`step_gaussian`]).
+fn innovation(l: &Mat3, l_inv: &Mat3, z: &Vec3, h: &Vec3) -> (Vec3, Innovation) {
+    let nu_pos = z - h;
+    let nu_neg = -z - h;
+    let d2_pos = mahalanobis2(l_inv, &nu_pos);
+    let d2_neg = mahalanobis2(l_inv, &nu_neg);
+    let (nu, d2, flipped) = if d2_neg < d2_pos {
+        (nu_neg, d2_neg, true)
+    } else {
+        (nu_pos, d2_pos, false)
+    };
+    let half_log_det = libm::logf(l[(0, 0)] * l[(1, 1)] * l[(2, 2)]);
+    // log(½e^{-d+/2} + ½e^{-d−/2}) up to the constant log ½ shared by all components.
+    let (lo, hi) = if d2_pos < d2_neg {
+        (d2_pos, d2_neg)
+    } else {
+        (d2_neg, d2_pos)
+    };
+    let log_lik = -0.5 * lo + libm::log1pf(libm::expf(-0.5 * (hi - lo))) - half_log_det;
+    (
+        nu,
+        Innovation {
+            d2,
+            log_lik,
+            flipped,
+        },
+    )
+}
+
+/// Wraps the orientation of a state to (−π, π] and checks that everything is finite.
+fn finish(mut x: StateVec, p: &StateMat, log_lik: f32) -> Result<StateVec, ComponentFailure> {
+    for i in 0..3 {
+        x[I_RPY + i] = wrap_pi(x[I_RPY + i]);
+    }
+    // A NaN or an infinity anywhere makes the sum non-finite (contiguous slices: the
+    // element iterators cost ≈ 10× more on the target).
+    let sum: f32 = x.as_slice().iter().sum::<f32>() + p.as_slice().iter().sum::<f32>();
+    if (sum + log_lik).is_finite() {
+        Ok(x)
+    } else {
+        Err(ComponentFailure::NonFinite)
+    }
+}
+
 /// Predict, update and compose one Gaussian (IROS Algorithm 1, one loop iteration).
 ///
 /// - Prediction (eq. 10–11): the state is augmented with the displacement `u`,
@@ -129,12 +288,60 @@ pub(crate) enum ComponentFailure {
 ///   update uses the sign with the smaller Mahalanobis distance. The likelihood used for
 ///   the weight is the sum over both signs (each with probability ½), so a component
 ///   far from the transmitter, where both signs fit equally, is not favoured.
-/// - Composition (eq. 15) at the updated augmented mean, with the Joseph form folded in:
-///   `P_k = F (I−KH*) P* (I−KH*)ᵀ Fᵀ + F K R Kᵀ Fᵀ`, a sum of PSD terms, so the
-///   covariance stays symmetric positive semi-definite in `f32`.
-///
-/// `r_var` is the measurement noise variance per axis (ICRA eq. 10), in (µA/m)².
+/// - Composition (eq. 15) at the updated augmented mean `F = [F_x F_u]`:
+///   `P_k = F (P* − K S Kᵀ) Fᵀ = F P* Fᵀ − (F V)(F V)ᵀ` with `V = P* H*ᵀ L⁻ᵀ`
+///   (`S = L Lᵀ`, so `K S Kᵀ = V Vᵀ`, and `K = V L⁻¹`). `F` is sparse (only `Ψ` and
+///   `p_T` change, see [`CompositionJac`]), so `F P* Fᵀ` costs ≈ 700 multiply-adds
+///   instead of the 16×16 products. This equals the Joseph form
+///   `F [(I−KH*) P* (I−KH*)ᵀ + K R Kᵀ] Fᵀ` for the optimal gain; [`step_component`]
+///   falls back to that form when the subtraction lost too many digits.
 pub(crate) fn step_gaussian(
+    inp: &StepInput,
+    x: &StateVec,
+    p: &StateMat,
+) -> Result<(StateVec, StateMat, Innovation), ComponentFailure> {
+    let (u, q) = (&inp.u, &inp.q);
+    // Linearization point of the measurement: the prior augmented mean (eq. 14).
+    let (prior_x, prior_j) = compose_rot(x, u, &Rot::new(&rpy_of(x)), &inp.rb);
+    let meas =
+        measure_rot(&prior_x, &Rot::new(&rpy_of(&prior_x))).map_err(|_| ComponentFailure::Model)?;
+    // H* = J [F_x F_u] (eq. 14), through the structure of F.
+    let (ha, hb) = prior_j.chain(&meas.jac);
+    let wa: SMatrix<f32, NX, 3> = p * ha.transpose();
+    let wb: SMatrix<f32, NU, 3> = q * hb.transpose();
+    let mut s = ha * wa + hb * wb;
+    s = (s + s.transpose()) * 0.5;
+    for i in 0..3 {
+        s[(i, i)] += inp.r_var;
+    }
+    let l = cholesky3(&s).map_err(|_| ComponentFailure::NotPositiveDefinite)?;
+    let l_inv = lower_inverse3(&l);
+    let (nu, inn) = innovation(&l, &l_inv, &inp.z, &meas.h);
+
+    // EKF update of the augmented state (Algorithm 1): V = W L⁻ᵀ, K = V L⁻¹.
+    let va: SMatrix<f32, NX, 3> = wa * l_inv.transpose();
+    let vb: SMatrix<f32, NU, 3> = wb * l_inv.transpose();
+    let x_post = x + va * (l_inv * nu);
+    let u_post = u + vb * (l_inv * nu);
+
+    // Composition at the updated augmented mean (eq. 15).
+    let ra = Rot::new(&rpy_of(&x_post));
+    let rb = Rot::new(&Vec3::new(u_post[3], u_post[4], u_post[5]));
+    let (x_new, post_j) = compose_rot(&x_post, &u_post, &ra, &rb);
+    // F P* Fᵀ = F [F_x P, F_u Q]ᵀ (P*, hence the product, symmetric).
+    let fp = post_j.apply_fx(p).transpose();
+    let fq = post_j.apply_fu(q).transpose();
+    let fpf = post_j.apply_fx(&fp) + post_j.apply_fu(&fq);
+    let fv = post_j.apply_fx(&va) + post_j.apply_fu(&vb);
+    let p_new = sub_outer(&fpf, &fv);
+    let x_new = finish(x_new, &p_new, inn.log_lik)?;
+    Ok((x_new, p_new, inn))
+}
+
+/// [`step_gaussian`] in the Joseph form, with dense Jacobians (the fallback, and the
+/// reference the short form is tested against):
+/// `P_k = F (I−KH*) P* (I−KH*)ᵀ Fᵀ + F K R Kᵀ Fᵀ`, a sum of PSD terms.
+pub(crate) fn step_gaussian_joseph(
     x: &StateVec,
     p: &StateMat,
     u: &MotionVec,
@@ -142,7 +349,6 @@ pub(crate) fn step_gaussian(
     z: &Vec3,
     r_var: f32,
 ) -> Result<(StateVec, StateMat, Innovation), ComponentFailure> {
-    // Linearization point of the measurement: the prior augmented mean (eq. 14).
     let prior = compose(x, u);
     let meas = measure(&prior.x).map_err(|_| ComponentFailure::Model)?;
     let ha: SMatrix<f32, 3, NX> = meas.jac * prior.fx;
@@ -157,33 +363,13 @@ pub(crate) fn step_gaussian(
     let l = cholesky3(&s).map_err(|_| ComponentFailure::NotPositiveDefinite)?;
     let l_inv = lower_inverse3(&l);
     let s_inv = l_inv.transpose() * l_inv;
+    let (nu, inn) = innovation(&l, &l_inv, z, &meas.h);
 
-    // Sign ambiguity: choose the sign whose innovation is closer.
-    let nu_pos = z - meas.h;
-    let nu_neg = -z - meas.h;
-    let d2_pos = mahalanobis2(&l_inv, &nu_pos);
-    let d2_neg = mahalanobis2(&l_inv, &nu_neg);
-    let (nu, d2, flipped) = if d2_neg < d2_pos {
-        (nu_neg, d2_neg, true)
-    } else {
-        (nu_pos, d2_pos, false)
-    };
-    let half_log_det = libm::logf(l[(0, 0)]) + libm::logf(l[(1, 1)]) + libm::logf(l[(2, 2)]);
-    // log(½e^{-d+/2} + ½e^{-d−/2}) up to the constant log ½ shared by all components.
-    let (lo, hi) = if d2_pos < d2_neg {
-        (d2_pos, d2_neg)
-    } else {
-        (d2_neg, d2_pos)
-    };
-    let log_lik = -0.5 * lo + libm::log1pf(libm::expf(-0.5 * (hi - lo))) - half_log_det;
-
-    // EKF update of the augmented state (Algorithm 1).
     let ka: SMatrix<f32, NX, 3> = wa * s_inv;
     let kb: SMatrix<f32, NU, 3> = wb * s_inv;
     let x_post = x + ka * nu;
     let u_post = u + kb * nu;
 
-    // Composition at the updated augmented mean (eq. 15) with the Joseph form.
     let post = compose(&x_post, &u_post);
     let b: SMatrix<f32, NX, 3> = post.fx * ka + post.fu * kb;
     let a1: StateMat = post.fx - b * ha;
@@ -191,26 +377,8 @@ pub(crate) fn step_gaussian(
     let mut p_new = a1 * p * a1.transpose() + a2 * q * a2.transpose();
     p_new += b * b.transpose() * r_var;
     p_new = (p_new + p_new.transpose()) * 0.5;
-
-    let mut x_new = post.x;
-    for i in 0..3 {
-        x_new[I_RPY + i] = wrap_pi(x_new[I_RPY + i]);
-    }
-    if !(x_new.iter().all(|v| v.is_finite())
-        && p_new.iter().all(|v| v.is_finite())
-        && log_lik.is_finite())
-    {
-        return Err(ComponentFailure::NonFinite);
-    }
-    Ok((
-        x_new,
-        p_new,
-        Innovation {
-            d2,
-            log_lik,
-            flipped,
-        },
-    ))
+    let x_new = finish(post.x, &p_new, inn.log_lik)?;
+    Ok((x_new, p_new, inn))
 }
 
 /// Absolute-attitude update of one Gaussian (beyond the papers: the receiver's IMU
@@ -222,8 +390,9 @@ pub(crate) fn step_gaussian(
 /// accumulates without bound, and through `p_T' = p_T − R(Ψ)·s·Δp` (eq. 7) that drift
 /// becomes position error. The IMU attitude is a direct, linear measurement of `Ψ`:
 /// `z = Ψ + v`, `v ~ N(0, R)`, `H = [I₃ 0]`, so the update is exact (no linearization):
-/// `S = P_ΨΨ + R`, `K = P_{·Ψ} S⁻¹`, innovation `ν = wrap(z − Ψ)` (wrapped to (−π, π]),
-/// Joseph form `P' = (I−KH) P (I−KH)ᵀ + K R Kᵀ` to stay PSD in `f32`.
+/// `S = P_ΨΨ + R = L Lᵀ`, `V = P_{·Ψ} L⁻ᵀ`, `K = V L⁻¹`, innovation `ν = wrap(z − Ψ)`
+/// (wrapped to (−π, π]), `P' = P − V Vᵀ` (= `P − K S Kᵀ`, the Joseph form's value for
+/// the optimal gain; see [`step_component`] for the fallback).
 ///
 /// The component weights are *not* multiplied by this measurement's likelihood: the
 /// attitude says nothing about where the transmitter is. Every component starts from
@@ -242,13 +411,28 @@ pub(crate) fn attitude_update(
     s = (s + s.transpose()) * 0.5;
     let l = cholesky3(&s).map_err(|_| ComponentFailure::NotPositiveDefinite)?;
     let l_inv = lower_inverse3(&l);
+    let nu = Vec3::from_fn(|i, _| wrap_pi(z[i] - x[I_RPY + i]));
+    let v: SMatrix<f32, NX, 3> = p_xa * l_inv.transpose();
+    let p_new = sub_outer(p, &v);
+    let x_new = finish(x + v * (l_inv * nu), &p_new, 0.0)?;
+    Ok((x_new, p_new))
+}
+
+/// [`attitude_update`] in the Joseph form `P' = (I−KH) P (I−KH)ᵀ + K R Kᵀ`.
+pub(crate) fn attitude_update_joseph(
+    x: &StateVec,
+    p: &StateMat,
+    z: &Vec3,
+    r: &Mat3,
+) -> Result<(StateVec, StateMat), ComponentFailure> {
+    let p_xa: SMatrix<f32, NX, 3> = p.fixed_columns::<3>(I_RPY).into_owned();
+    let mut s: Mat3 = p_xa.fixed_rows::<3>(I_RPY).into_owned() + r;
+    s = (s + s.transpose()) * 0.5;
+    let l = cholesky3(&s).map_err(|_| ComponentFailure::NotPositiveDefinite)?;
+    let l_inv = lower_inverse3(&l);
     let s_inv = l_inv.transpose() * l_inv;
     let nu = Vec3::from_fn(|i, _| wrap_pi(z[i] - x[I_RPY + i]));
     let k: SMatrix<f32, NX, 3> = p_xa * s_inv;
-    let mut x_new = x + k * nu;
-    for i in 0..3 {
-        x_new[I_RPY + i] = wrap_pi(x_new[I_RPY + i]);
-    }
     // A = I − K H: K H only fills the orientation columns.
     let mut a = StateMat::identity();
     for j in 0..3 {
@@ -258,9 +442,7 @@ pub(crate) fn attitude_update(
     }
     let mut p_new = a * p * a.transpose() + k * r * k.transpose();
     p_new = (p_new + p_new.transpose()) * 0.5;
-    if !(x_new.iter().all(|v| v.is_finite()) && p_new.iter().all(|v| v.is_finite())) {
-        return Err(ComponentFailure::NonFinite);
-    }
+    let x_new = finish(x + k * nu, &p_new, 0.0)?;
     Ok((x_new, p_new))
 }
 
@@ -435,6 +617,7 @@ mod tests {
         let mut rng = SmallRng::seed_from_u64(31);
         let mut worst_x = 0.0f64;
         let mut worst_p = 0.0f64;
+        let mut worst_short = 0.0f64;
         for _ in 0..200 {
             let x = random_state(&mut rng);
             let range = p_of3(&x).norm();
@@ -448,7 +631,18 @@ mod tests {
             let noise = Vec3::from_fn(|_, _| rng.random_range(-0.05f32..0.05)) * h.norm();
             let z = (h + noise) * sign;
             let r_var = (0.03 * h.norm()).powi(2) + 1e-5;
-            let (x32, p32, _) = step_gaussian(&x, &p, &u, &q, &z, r_var).unwrap();
+            let inp = StepInput::new(&u, &q, &z, r_var);
+            let (x32, p32, _) = step_gaussian(&inp, &x, &p).unwrap();
+            // The short form agrees with the Joseph form to f32 round-off.
+            let (xj, pj, _) = step_gaussian_joseph(&x, &p, &u, &q, &z, r_var).unwrap();
+            for i in 0..10 {
+                let sd = (pj[(i, i)] as f64).sqrt().max(1e-6);
+                worst_short = worst_short.max(((x32[i] - xj[i]) as f64).abs() / sd);
+                for j in 0..10 {
+                    let sc = ((pj[(i, i)] * pj[(j, j)]) as f64).sqrt().max(1e-18);
+                    worst_short = worst_short.max(((p32[(i, j)] - pj[(i, j)]) as f64).abs() / sc);
+                }
+            }
             let (x64, p64) = reference_step(
                 &x.cast(),
                 &p.cast(),
@@ -477,6 +671,7 @@ mod tests {
         }
         assert!(worst_x < 2e-2, "mean: worst error {worst_x:e} posterior σ");
         assert!(worst_p < 2e-2, "cov: worst relative error {worst_p:e}");
+        assert!(worst_short < 1e-3, "short vs Joseph form: {worst_short:e}");
     }
 
     fn p_of3(x: &StateVec) -> Vec3 {
@@ -493,6 +688,8 @@ mod tests {
         // Yaw measured just across the ±π cut: the innovation is +0.1, not −2π + 0.1.
         let z = Vec3::new(x[0] + 0.01, x[1] - 0.02, wrap_pi(3.2));
         let (x1, p1) = attitude_update(&x, &p, &z, &r).unwrap();
+        let (xj, pj) = attitude_update_joseph(&x, &p, &z, &r).unwrap();
+        assert!((x1 - xj).abs().max() < 1e-5 && (p1 - pj).abs().max() < 1e-5 * p.abs().max());
         // f64 reference: K = P Hᵀ (H P Hᵀ + R)⁻¹, P' = (I − K H) P.
         let (p64, r64) = (p.cast::<f64>(), r.cast::<f64>());
         let pxa = p64.fixed_columns::<3>(0).into_owned();
@@ -529,14 +726,14 @@ mod tests {
         x[I_P] += 0.2;
         x[I_M] += 0.5;
         let z = measure(&truth).unwrap().h;
-        let (x1, p1, inn) = step_gaussian(&x, &p0, &u, &q, &z, 1e-6).unwrap();
+        let (x1, p1, inn) = step_gaussian(&StepInput::new(&u, &q, &z, 1e-6), &x, &p0).unwrap();
         assert!(!inn.flipped);
         // The update explains the pulse better than the prior did.
         let before = (measure(&x).unwrap().h - z).norm();
         let after = (measure(&x1).unwrap().h - z).norm();
         assert!(after < 0.5 * before, "{before} -> {after}");
         assert!(p1.trace() < p0.trace());
-        let (_, _, inn2) = step_gaussian(&x, &p0, &u, &q, &(-z), 1e-6).unwrap();
+        let (_, _, inn2) = step_gaussian(&StepInput::new(&u, &q, &(-z), 1e-6), &x, &p0).unwrap();
         assert!(inn2.flipped);
         assert!((inn2.log_lik - inn.log_lik).abs() < 1e-3 * inn.log_lik.abs().max(1.0));
     }

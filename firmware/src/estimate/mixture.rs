@@ -77,25 +77,101 @@ fn d2_3(c: &Mat3, v: &Vec3) -> f32 {
     }
 }
 
+/// Position, position covariance (upper triangle) and its trace of a component: what
+/// the rejection tests of [`merge`] read, kept in a compact array so that the O(N²)
+/// pair loop never unpacks covariance blocks for pairs that are far apart.
+#[derive(Debug, Clone, Copy)]
+struct MergeKey {
+    p: [f32; 3],
+    /// `[c00, c01, c02, c11, c12, c22]` of the position covariance.
+    c: [f32; 6],
+    trace: f32,
+}
+
+impl MergeKey {
+    fn of(comp: &Component) -> Self {
+        let at = |i, j| comp.p_at(I_P + i, I_P + j);
+        let c = [at(0, 0), at(0, 1), at(0, 2), at(1, 1), at(1, 2), at(2, 2)];
+        Self {
+            p: [comp.x[I_P], comp.x[I_P + 1], comp.x[I_P + 2]],
+            c,
+            trace: c[0] + c[3] + c[5],
+        }
+    }
+
+    /// Whether the pair certainly fails [`close`]: first `|dp|² > max_d2 · trace(C_a +
+    /// C_b)` (then `d² ≥ |dp|² / λ_max > max_d2`, ≈ 10 instructions), then the position
+    /// part of the distance alone, `dpᵀ (C_a + C_b)⁻¹ dp > max_d2` (LDLᵀ, no square root;
+    /// the moment part only adds to it).
+    fn far(&self, other: &Self, max_d2: f32) -> bool {
+        let d = [
+            self.p[0] - other.p[0],
+            self.p[1] - other.p[1],
+            self.p[2] - other.p[2],
+        ];
+        if d[0] * d[0] + d[1] * d[1] + d[2] * d[2] > max_d2 * (self.trace + other.trace) {
+            return true;
+        }
+        let c: [f32; 6] = core::array::from_fn(|k| self.c[k] + other.c[k]);
+        // LDLᵀ of the 3×3 sum; a non-positive pivot leaves the decision to `close`.
+        let d0 = c[0];
+        if d0.is_nan() || d0 <= 0.0 {
+            return false;
+        }
+        let (l10, l20) = (c[1] / d0, c[2] / d0);
+        let d1 = c[3] - l10 * c[1];
+        if d1.is_nan() || d1 <= 0.0 {
+            return false;
+        }
+        let l21 = (c[4] - l20 * c[1]) / d1;
+        let d2 = c[5] - l20 * c[2] - l21 * (c[4] - l20 * c[1]);
+        if d2.is_nan() || d2 <= 0.0 {
+            return false;
+        }
+        // Forward substitution y = L⁻¹ dp, then Σ y_k² / d_k.
+        let y0 = d[0];
+        let y1 = d[1] - l10 * y0;
+        let y2 = d[2] - l20 * y0 - l21 * y1;
+        // A 1e-5 relative margin keeps pairs at the round-off boundary for `close`.
+        (y0 * y0 / d0 + y1 * y1 / d1 + y2 * y2 / d2) > max_d2 * (1.0 + 1e-5)
+    }
+}
+
 /// Merges pairs of near-duplicate components: position and moment (sign-aligned) within
 /// `max_d2` (squared Mahalanobis, with the sum of both covariances). The merge preserves
 /// the pair's weight, mean and covariance (eq. 18 applied to the pair).
 /// Returns the number of merges.
+///
+/// All pairs are visited in the same order as a plain double loop, but the cheap
+/// rejection runs on a compact copy of the positions and traces ([`MergeKey`]), kept in
+/// step with the mixture through every merge and `swap_remove`: the result is the same,
+/// at ≈ 10 instructions per rejected pair.
 pub(crate) fn merge<const N: usize>(comps: &mut Vec<Component, N>, max_d2: f32) -> u16 {
+    let mut keys: Vec<MergeKey, N> = comps.iter().map(MergeKey::of).collect();
     let mut merged = 0u16;
     let mut i = 0;
-    while i < comps.len() {
+    while i < keys.len() {
+        let Some(&ki) = keys.get(i) else { break };
+        let mut ki = ki;
         let mut j = i + 1;
-        while j < comps.len() {
+        while j < keys.len() {
+            let far = keys.get(j).is_none_or(|kj| ki.far(kj, max_d2));
+            if far {
+                j += 1;
+                continue;
+            }
             let (Some(a), Some(b)) = (comps.get(i), comps.get(j)) else {
                 break;
             };
             if close(a, b, max_d2) {
                 let m = merge_pair(a, b);
-                if let Some(slot) = comps.get_mut(i) {
+                ki = MergeKey::of(&m);
+                if let (Some(slot), Some(key)) = (comps.get_mut(i), keys.get_mut(i)) {
                     *slot = m;
+                    *key = ki;
                 }
                 comps.swap_remove(j);
+                keys.swap_remove(j);
                 merged += 1;
             } else {
                 j += 1;
@@ -207,8 +283,13 @@ pub(crate) fn split<const N: usize>(
 /// The three parts of `c` if it needs splitting (see [`split`]).
 fn split_one(c: &Component, ratio: f32) -> Option<[Component; 3]> {
     let ppp = c.block3(I_P);
-    let (axis, lambda) = principal_axis(&ppp);
     let range = Vec3::new(c.x[I_P], c.x[I_P + 1], c.x[I_P + 2]).norm();
+    // λ_max ≤ trace: most components are rejected before the power iteration.
+    let limit = (ratio * range).max(0.02);
+    if ppp.trace() <= limit * limit {
+        return None;
+    }
+    let (axis, lambda) = principal_axis(&ppp);
     let sigma = libm::sqrtf(lambda.max(0.0));
     // Never split below 2 cm: the point-dipole model itself is not better than that.
     if sigma <= ratio * range || sigma < 0.02 {

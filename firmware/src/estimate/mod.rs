@@ -26,11 +26,12 @@ mod init;
 mod mixture;
 mod model;
 mod packed;
+mod rot;
 pub mod sog;
 #[cfg(test)]
 mod testsim;
 
-pub use sog::{DefaultSog, SOG_CAPACITY, SogFilter};
+pub use sog::{DefaultSog, Phase, SOG_CAPACITY, SogFilter};
 
 use crate::frame::Rpy;
 use crate::{Mat3, Vec3};

@@ -7,8 +7,9 @@
 //! Displacement `u = [Δp; ΔΨ]` (6): translation in `R_{k-1}` as dead-reckoned (m) and
 //! rotation `R_{k-1} → R_k` (rad).
 
+use super::rot::{self, Rot};
 use crate::dipole::{DipoleError, field_with_jacobians};
-use crate::frame::{Rpy, compose_rpy, rotation_from_rpy, rotation_partials};
+use crate::frame::Rpy;
 use crate::{Mat3, Vec3};
 use nalgebra::{SMatrix, SVector};
 
@@ -64,35 +65,125 @@ pub(crate) struct Composition {
     pub fu: SMatrix<f32, NX, NU>,
 }
 
+/// The non-trivial blocks of the composition's Jacobians (IROS eq. 6–8). Everything
+/// else in `∂f/∂x` is the identity (`p`, `m`, `s` carry over) and in `∂f/∂u` zero:
+///
+/// ```text
+/// Ψ' = Ψ ⊕ ΔΨ          ∂Ψ'/∂Ψ = ja,  ∂Ψ'/∂ΔΨ = jb
+/// p' = p − R(Ψ)·s·Δp   ∂p'/∂Ψ = g,   ∂p'/∂p = I,  ∂p'/∂s = gs,  ∂p'/∂Δp = rs
+/// ```
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct CompositionJac {
+    /// `∂Ψ'/∂Ψ`.
+    pub ja: Mat3,
+    /// `∂Ψ'/∂ΔΨ`.
+    pub jb: Mat3,
+    /// `∂p'/∂Ψ = −s·[∂R/∂ψ Δp, ∂R/∂θ Δp, ∂R/∂φ Δp]`.
+    pub g: Mat3,
+    /// `∂p'/∂s = −R Δp`.
+    pub gs: Vec3,
+    /// `∂p'/∂Δp = −s R`.
+    pub rs: Mat3,
+}
+
+impl CompositionJac {
+    /// The dense `∂f/∂x` (10×10).
+    pub fn fx(&self) -> StateMat {
+        let mut fx = StateMat::identity();
+        fx.fixed_view_mut::<3, 3>(I_RPY, I_RPY).copy_from(&self.ja);
+        fx.fixed_view_mut::<3, 3>(I_P, I_RPY).copy_from(&self.g);
+        fx.fixed_view_mut::<3, 1>(I_P, I_S).copy_from(&self.gs);
+        fx
+    }
+
+    /// The dense `∂f/∂u` (10×6).
+    pub fn fu(&self) -> SMatrix<f32, NX, NU> {
+        let mut fu = SMatrix::<f32, NX, NU>::zeros();
+        fu.fixed_view_mut::<3, 3>(I_P, 0).copy_from(&self.rs);
+        fu.fixed_view_mut::<3, 3>(I_RPY, 3).copy_from(&self.jb);
+        fu
+    }
+
+    /// `(J·∂f/∂x, J·∂f/∂u)` for a 3×10 `J` whose scale column is zero (the measurement
+    /// Jacobian): the chain rule `H* = J [F_x F_u]` of IROS eq. 14 through the structure.
+    pub fn chain(&self, j: &SMatrix<f32, 3, NX>) -> (SMatrix<f32, 3, NX>, SMatrix<f32, 3, NU>) {
+        let j_psi: Mat3 = j.fixed_columns::<3>(I_RPY).into_owned();
+        let j_p: Mat3 = j.fixed_columns::<3>(I_P).into_owned();
+        let mut ha = *j;
+        ha.fixed_columns_mut::<3>(I_RPY)
+            .copy_from(&(j_psi * self.ja + j_p * self.g));
+        ha.set_column(I_S, &(j.column(I_S) + j_p * self.gs));
+        let mut hb = SMatrix::<f32, 3, NU>::zeros();
+        hb.fixed_columns_mut::<3>(0).copy_from(&(j_p * self.rs));
+        hb.fixed_columns_mut::<3>(3).copy_from(&(j_psi * self.jb));
+        (ha, hb)
+    }
+
+    /// `∂f/∂x · a` for a 10-row `a`, using the structure (21 multiply-adds per column).
+    pub fn apply_fx<const C: usize>(&self, a: &SMatrix<f32, NX, C>) -> SMatrix<f32, NX, C> {
+        let mut out = *a;
+        let a_psi = a.fixed_rows::<3>(I_RPY);
+        out.fixed_rows_mut::<3>(I_RPY).copy_from(&(self.ja * a_psi));
+        let dp = self.g * a_psi + self.gs * a.fixed_rows::<1>(I_S);
+        let mut p_rows = out.fixed_rows_mut::<3>(I_P);
+        p_rows += dp;
+        out
+    }
+
+    /// `∂f/∂u · b` for a 6-row `b` (18 multiply-adds per column; rows `m`, `s` are 0).
+    pub fn apply_fu<const C: usize>(&self, b: &SMatrix<f32, NU, C>) -> SMatrix<f32, NX, C> {
+        let mut out = SMatrix::<f32, NX, C>::zeros();
+        out.fixed_rows_mut::<3>(I_RPY)
+            .copy_from(&(self.jb * b.fixed_rows::<3>(3)));
+        out.fixed_rows_mut::<3>(I_P)
+            .copy_from(&(self.rs * b.fixed_rows::<3>(0)));
+        out
+    }
+}
+
 /// Composition (IROS eq. 5–9 with the scale state): `Ψ' = Ψ ⊕ ΔΨ`,
-/// `p' = p − R(Ψ)·s·Δp`, `m' = m`, `s' = s`.
-pub(crate) fn compose(x: &StateVec, u: &MotionVec) -> Composition {
-    let psi = rpy_of(x);
+/// `p' = p − R(Ψ)·s·Δp`, `m' = m`, `s' = s`, from the rotations `ra = R(Ψ)` and
+/// `rb = R(ΔΨ)` (with their partials) already evaluated at `x` and `u`.
+pub(crate) fn compose_rot(
+    x: &StateVec,
+    u: &MotionVec,
+    ra: &Rot,
+    rb: &Rot,
+) -> (StateVec, CompositionJac) {
     let p = p_of(x);
     let s = x[I_S];
     let dp = Vec3::new(u[0], u[1], u[2]);
-    let dpsi = Rpy::new(u[3], u[4], u[5]);
-    let (psi2, ja, jb) = compose_rpy(&psi, &dpsi);
-    let r = rotation_from_rpy(&psi);
-    let parts = rotation_partials(&psi);
-    let rdp = r * dp;
+    let (psi2, _, ja, jb) = rot::compose_rpy(ra, rb);
+    let rdp = ra.r * dp;
     let p2 = p - rdp * s;
 
     let mut out = *x;
     out.fixed_rows_mut::<3>(I_RPY).copy_from(&psi2);
     out.fixed_rows_mut::<3>(I_P).copy_from(&p2);
-
-    let mut fx = StateMat::identity();
-    fx.fixed_view_mut::<3, 3>(I_RPY, I_RPY).copy_from(&ja);
-    for (i, part) in parts.iter().enumerate() {
-        fx.fixed_view_mut::<3, 1>(I_P, I_RPY + i)
-            .copy_from(&(part * dp * (-s)));
+    let mut g = Mat3::zeros();
+    for (i, part) in ra.d.iter().enumerate() {
+        g.set_column(i, &(part * dp * (-s)));
     }
-    fx.fixed_view_mut::<3, 1>(I_P, I_S).copy_from(&(-rdp));
-    let mut fu = SMatrix::<f32, NX, NU>::zeros();
-    fu.fixed_view_mut::<3, 3>(I_P, 0).copy_from(&(r * (-s)));
-    fu.fixed_view_mut::<3, 3>(I_RPY, 3).copy_from(&jb);
-    Composition { x: out, fx, fu }
+    let jac = CompositionJac {
+        ja,
+        jb,
+        g,
+        gs: -rdp,
+        rs: ra.r * (-s),
+    };
+    (out, jac)
+}
+
+/// [`compose_rot`] with the rotations evaluated here and the dense Jacobians.
+pub(crate) fn compose(x: &StateVec, u: &MotionVec) -> Composition {
+    let ra = Rot::new(&rpy_of(x));
+    let rb = Rot::new(&Rpy::new(u[3], u[4], u[5]));
+    let (x2, jac) = compose_rot(x, u, &ra, &rb);
+    Composition {
+        x: x2,
+        fx: jac.fx(),
+        fu: jac.fu(),
+    }
 }
 
 /// The predicted measurement and its Jacobian with respect to the state.
@@ -106,15 +197,17 @@ pub(crate) struct Measurement {
 /// The measurement model (IROS eq. 12–14): the receiver sits at the origin of `G_k`, so
 /// `r = p_R − p_T = −p_T`, and the field is rotated into the receiver frame.
 pub(crate) fn measure(x: &StateVec) -> Result<Measurement, DipoleError> {
-    let psi = rpy_of(x);
+    measure_rot(x, &Rot::new(&rpy_of(x)))
+}
+
+/// [`measure`] with `rot = R(Ψ)` and its partials already evaluated at `x`.
+pub(crate) fn measure_rot(x: &StateVec, rot: &Rot) -> Result<Measurement, DipoleError> {
     let fj = field_with_jacobians(&(-p_of(x)), &m_of(x))?;
-    let r = rotation_from_rpy(&psi);
-    let parts = rotation_partials(&psi);
-    let rt = r.transpose();
+    let rt = rot.r.transpose();
     let hg = fj.h * K_H;
     let mut jac = SMatrix::<f32, 3, NX>::zeros();
-    for (i, part) in parts.iter().enumerate() {
-        jac.set_column(I_RPY + i, &(part.transpose() * hg));
+    for (i, part) in rot.d.iter().enumerate() {
+        jac.set_column(I_RPY + i, &(part.tr_mul(&hg)));
     }
     let d_p: Mat3 = rt * fj.d_r * (-K_H);
     let d_m: Mat3 = rt * fj.d_m * K_H;

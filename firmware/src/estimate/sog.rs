@@ -17,7 +17,7 @@
 //! (eq. 17), check divergence, prune, merge near-duplicates and split where needed
 //! (heaviest components first).
 
-use super::gaussian::{Component, attitude_update, step_gaussian};
+use super::gaussian::{Component, StepInput, step_component};
 use super::init::initialize;
 use super::mixture::{merge, moment_mean, normalize, position_moments, prune, split};
 use super::model::{FIELD_SCALE, I_RPY, I_S, MOMENT_SCALE, MotionMat, MotionVec};
@@ -146,12 +146,34 @@ impl<const N: usize> SogFilter<N> {
     }
 }
 
-impl<const N: usize> Estimator for SogFilter<N> {
-    fn step(
+/// The phases of a step, reported to the `mark` callback of
+/// [`SogFilter::step_marked`] as each one ends (for profiling on the target).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Phase {
+    /// Input checks, per-pulse shared terms (or the whole initialization).
+    Setup,
+    /// One component's predict / pulse update / compose and absolute-attitude update,
+    /// including unpacking.
+    Update,
+    /// One component packed back into the mixture.
+    Store,
+    /// Divergence check, weight normalization and pruning.
+    Prune,
+    /// Merging of near-duplicates.
+    Merge,
+    /// Splitting.
+    Split,
+}
+
+impl<const N: usize> SogFilter<N> {
+    /// [`Estimator::step`], calling `mark` at the end of each [`Phase`] (the plain step
+    /// passes a no-op, which compiles away).
+    pub fn step_marked(
         &mut self,
         motion: &Displacement,
         attitude: &Attitude,
         pulse: &Pulse,
+        mut mark: impl FnMut(Phase),
     ) -> Result<StepReport, EstimateError> {
         // Validate every input before touching the state.
         self.check_pulse(pulse)?;
@@ -167,7 +189,9 @@ impl<const N: usize> Estimator for SogFilter<N> {
         let z = pulse.h * FIELD_SCALE;
 
         if !self.initialized {
-            return Ok(self.try_initialize(attitude, &z, StepOutcome::Initialized));
+            let report = self.try_initialize(attitude, &z, StepOutcome::Initialized);
+            mark(Phase::Setup);
+            return Ok(report);
         }
 
         let u = MotionVec::from_column_slice(&[
@@ -184,11 +208,13 @@ impl<const N: usize> Estimator for SogFilter<N> {
             (motion.cov + motion.cov.transpose()) * 0.5
         };
         let r_var = self.noise_var(&z);
-        // Absolute attitude of R_k (see `attitude_update`); with a known trajectory the
+        // Absolute attitude of R_k (see `gaussian::attitude_update`); with a known trajectory the
         // orientation is already exact.
         let fuse_attitude = !self.exact_motion();
         let att_r = (attitude.cov + attitude.cov.transpose()) * 0.5;
 
+        let inp = StepInput::new(&u, &q, &z, r_var);
+        mark(Phase::Setup);
         let mut best_d2 = f32::INFINITY;
         let mut dropped = 0u16;
         let mut i = 0;
@@ -196,13 +222,9 @@ impl<const N: usize> Estimator for SogFilter<N> {
             let Some(c) = self.comps.get(i).copied() else {
                 break;
             };
-            let stepped = step_gaussian(&c.x, &c.p(), &u, &q, &z, r_var).and_then(|(x, p, inn)| {
-                if fuse_attitude {
-                    attitude_update(&x, &p, &attitude.rpy, &att_r).map(|(x, p)| (x, p, inn))
-                } else {
-                    Ok((x, p, inn))
-                }
-            });
+            let att = fuse_attitude.then_some((&attitude.rpy, &att_r));
+            let stepped = step_component(&inp, &c.x, &c.p(), att);
+            mark(Phase::Update);
             match stepped {
                 Ok((x, p, inn)) => {
                     best_d2 = best_d2.min(inn.d2);
@@ -211,6 +233,7 @@ impl<const N: usize> Estimator for SogFilter<N> {
                     if let Some(slot) = self.comps.get_mut(i) {
                         *slot = Component::new(x, &p, c.log_w + inn.log_lik);
                     }
+                    mark(Phase::Store);
                     i += 1;
                 }
                 Err(_) => {
@@ -235,12 +258,15 @@ impl<const N: usize> Estimator for SogFilter<N> {
 
         normalize(&mut self.comps);
         let pruned = prune(&mut self.comps, self.config.prune_weight);
+        mark(Phase::Prune);
         let merged = merge(&mut self.comps, self.config.merge_d2);
+        mark(Phase::Merge);
         let split = split(
             &mut self.comps,
             self.config.split_ratio,
             self.config.split_min_weight,
         );
+        mark(Phase::Split);
         Ok(StepReport {
             outcome: StepOutcome::Updated,
             n_components: self.comps.len(),
@@ -250,6 +276,17 @@ impl<const N: usize> Estimator for SogFilter<N> {
             split,
             dropped,
         })
+    }
+}
+
+impl<const N: usize> Estimator for SogFilter<N> {
+    fn step(
+        &mut self,
+        motion: &Displacement,
+        attitude: &Attitude,
+        pulse: &Pulse,
+    ) -> Result<StepReport, EstimateError> {
+        self.step_marked(motion, attitude, pulse, |_| {})
     }
 
     fn estimate(&self) -> Option<VictimEstimate> {
