@@ -1,31 +1,304 @@
-//! Board binary for the reference receiver (STM32F405RG, e.g. Adafruit Feather STM32F405
-//! Express). Flash and run with `cargo board-run` (probe-rs); logs arrive over RTT (defmt).
+//! Board binary of the receiver (reference board: STM32F405RG, e.g. the Adafruit Feather
+//! STM32F405 Express, 12 MHz crystal). Flash and run with `cargo board-run` (probe-rs);
+//! logs arrive over RTT (defmt), the session log over USART3.
 //!
-//! This first version boots the core, enables the FPU (done by cortex-m-rt for the
-//! `eabihf` target), checks the dipole model against a closed-form value on the chip and
-//! idles. The sensing front end and the application loop are added by later issues.
+//! The application itself is [`firmware::app::Receiver`] — the very type `hal-sim`
+//! drives on the PC; this file only binds it to the hardware:
+//!
+//! | function | peripheral | MCU pins |
+//! |---|---|---|
+//! | antenna ADC ADS131M04 (SPI mode 1, 8 MHz; CLKIN 8.192 MHz from its own oscillator) | SPI2, EXTI7 | SCK PB13, MISO PB14, MOSI PB15, CS PB12, DRDY PC7 |
+//! | IMU BMI160 (acc+gyr) + LSM303AGR (mag), SSD1306 128×64 display | I2C1, 400 kHz, shared | SCL PB6, SDA PB7 |
+//! | session-log stream (spec `arva-session` v1, 921 600 Bd) | USART3 TX | PB10 |
+//! | IMU sample clock (100 Hz) | TIM2 | – |
+//!
+//! Timing: every ADC sample is read in the DRDY interrupt (EXTI9_5, highest priority)
+//! into a lock-free queue, so no sample is lost while the main loop runs the estimator
+//! (≤ 8.4 M instructions per pulse, see `hal-sim/reports/budget.md`) or flushes the
+//! display. The ADC's sample count is the time base of everything (8 kSPS), so the
+//! pulse times of the front end and the IMU times share one clock. Each record is
+//! written to the session log *before* the application processes it, so a fault in the
+//! estimator never loses recorded data. The receiver state (~64 KB, the SOGs filter) lives
+//! in the core-coupled RAM (`.ccmram`, see `memory.x`).
 #![no_std]
 #![no_main]
+// Two narrow uses, each with its SAFETY note: the `.ccmram` static of the receiver
+// (taken once, in `main`, before interrupts are enabled) and nothing else.
+#![allow(unsafe_code)]
 
+use core::cell::RefCell;
+use core::mem::MaybeUninit;
+use core::sync::atomic::{AtomicU32, Ordering};
+use cortex_m::interrupt::Mutex;
 use cortex_m_rt::entry;
 use defmt_rtt as _;
-use firmware::{Vec3, dipole};
+use embedded_graphics::pixelcolor::BinaryColor;
+use embedded_graphics::prelude::*;
+use embedded_hal_bus::i2c::RefCellDevice;
+use embedded_hal_bus::spi::ExclusiveDevice;
+use firmware::app::{AppConfig, Receiver};
+use firmware::drivers::ads131m04::{self, Ads131m04};
+use firmware::drivers::imu::Imu;
+use firmware::frontend::{Frontend, FrontendConfig, PulseMeasurement};
+use firmware::{Vec3, display, session_log};
+use heapless::spsc::{Consumer, Producer, Queue};
 use panic_probe as _;
+use ssd1306::{I2CDisplayInterface, Ssd1306, prelude::*};
+use stm32f4xx_hal::gpio::{Edge, ExtiPin, Input, PC7};
+use stm32f4xx_hal::{interrupt, pac, prelude::*, rcc::Config, spi};
+
+/// Local geomagnetic field in the geographic frame (north, west, up), µT, declination
+/// folded in: 48 µT at 63° inclination. Set it for the region the receiver is used in.
+const EARTH_FIELD_UT: [f32; 3] = [21.79, 0.0, -42.77];
+/// The user's calibrated step length (m), `None` until the calibration walk was done.
+const STEP_LENGTH_M: Option<f32> = None;
+/// ADC frames buffered between the DRDY interrupt and the main loop: 250 ms at 8 kSPS,
+/// room for the worst estimator step plus a display flush.
+const QUEUE_LEN: usize = 2048;
+
+/// One simultaneous sample of the three coils.
+#[derive(Clone, Copy)]
+struct Sample {
+    volts: [f32; 3],
+    clipped: bool,
+}
+
+/// DRDY always reads "ready": the driver is only called from the DRDY interrupt, i.e.
+/// right after the real DRDY pin (owned by the interrupt for its pending flag) fell.
+struct DrdyAsserted;
+
+impl embedded_hal::digital::ErrorType for DrdyAsserted {
+    type Error = core::convert::Infallible;
+}
+
+impl embedded_hal::digital::InputPin for DrdyAsserted {
+    fn is_high(&mut self) -> Result<bool, Self::Error> {
+        Ok(false)
+    }
+    fn is_low(&mut self) -> Result<bool, Self::Error> {
+        Ok(true)
+    }
+}
+
+type AdcSpi = ExclusiveDevice<
+    spi::Spi<pac::SPI2>,
+    stm32f4xx_hal::gpio::PB12<stm32f4xx_hal::gpio::Output>,
+    embedded_hal_bus::spi::NoDelay,
+>;
+
+/// What the DRDY interrupt owns.
+struct Sampler {
+    adc: Ads131m04<AdcSpi, DrdyAsserted>,
+    drdy: PC7<Input>,
+    queue: Producer<'static, Sample>,
+}
+
+static SAMPLER: Mutex<RefCell<Option<Sampler>>> = Mutex::new(RefCell::new(None));
+/// ADC samples taken (the time base) and samples dropped (queue full or bus error).
+static SAMPLES: AtomicU32 = AtomicU32::new(0);
+static DROPPED: AtomicU32 = AtomicU32::new(0);
+
+/// The application state in core-coupled RAM (not zeroed by the runtime: initialized
+/// with `Receiver::emplace` before use).
+#[unsafe(link_section = ".ccmram")]
+static mut RECEIVER: MaybeUninit<Receiver> = MaybeUninit::uninit();
+
+#[interrupt]
+fn EXTI9_5() {
+    cortex_m::interrupt::free(|cs| {
+        let mut guard = SAMPLER.borrow(cs).borrow_mut();
+        let Some(s) = guard.as_mut() else { return };
+        s.drdy.clear_interrupt_pending_bit();
+        SAMPLES.fetch_add(1, Ordering::Relaxed);
+        let sample = match s.adc.read_frame() {
+            Ok(frame) => {
+                let v = s.adc.to_volts(&frame);
+                Sample {
+                    volts: [v[0], v[1], v[2]],
+                    clipped: frame.coils_saturated(),
+                }
+            }
+            // A corrupted frame keeps the time base: the DSP sees a clipped zero sample.
+            Err(_) => Sample {
+                volts: [0.0; 3],
+                clipped: true,
+            },
+        };
+        if s.queue.enqueue(sample).is_err() {
+            DROPPED.fetch_add(1, Ordering::Relaxed);
+        }
+    });
+}
+
+fn seconds(samples: u32, rate_hz: f32) -> f32 {
+    samples as f32 / rate_hz
+}
 
 #[entry]
 fn main() -> ! {
-    defmt::info!("arva receiver: boot");
-    // On the moment's axis the field is 2m / (4π r³): a self-check of the FPU path.
-    let (range, moment) = (10.0f32, 0.02f32);
-    let expected = 2.0 * moment / (4.0 * core::f32::consts::PI * range * range * range);
-    match dipole::field(&Vec3::new(0.0, 0.0, range), &Vec3::new(0.0, 0.0, moment)) {
-        Ok(h) if (h.z - expected).abs() <= 1e-6 * expected => {
-            defmt::info!("dipole self-check ok: {=f32} A/m", h.z)
-        }
-        Ok(h) => defmt::error!("dipole self-check off: {=f32} vs {=f32}", h.z, expected),
-        Err(_) => defmt::error!("dipole self-check refused its input"),
+    let (Some(dp), Some(cp)) = (pac::Peripherals::take(), cortex_m::Peripherals::take()) else {
+        defmt::panic!("peripherals taken twice");
+    };
+    let mut rcc = dp.RCC.freeze(Config::hse(12.MHz()).sysclk(168.MHz()));
+    let mut delay = cp.SYST.delay(&rcc.clocks);
+    let mut syscfg = dp.SYSCFG.constrain(&mut rcc);
+    let mut exti = dp.EXTI;
+    let gpiob = dp.GPIOB.split(&mut rcc);
+    let gpioc = dp.GPIOC.split(&mut rcc);
+
+    // Session-log stream first, so everything after it can be recorded.
+    let Ok(mut log) = dp.USART3.tx(gpiob.pb10, 921_600.bps(), &mut rcc) else {
+        defmt::panic!("USART3 configuration refused");
+    };
+    let earth = Vec3::new(EARTH_FIELD_UT[0], EARTH_FIELD_UT[1], EARTH_FIELD_UT[2]);
+    if session_log::write_header(&mut log, 100.0, &earth, true).is_err() {
+        defmt::warn!("session log: header not written");
     }
+
+    // Antenna ADC on SPI2, mode 1.
+    let mode = spi::Mode {
+        polarity: spi::Polarity::IdleLow,
+        phase: spi::Phase::CaptureOnSecondTransition,
+    };
+    let bus = dp.SPI2.spi(
+        (Some(gpiob.pb13), Some(gpiob.pb14), Some(gpiob.pb15)),
+        mode,
+        8.MHz(),
+        &mut rcc,
+    );
+    let Ok(adc_spi) = ExclusiveDevice::new_no_delay(bus, gpiob.pb12.into_push_pull_output());
+    let mut adc = Ads131m04::new(adc_spi, DrdyAsserted);
+    let adc_ok = adc.reset(&mut delay).is_ok()
+        && adc.check_id().is_ok()
+        && adc.configure(&ads131m04::Config::default()).is_ok();
+    if !adc_ok {
+        defmt::error!("antenna ADC not answering: no pulses will be received");
+    }
+
+    // IMU and display share I2C1.
+    let i2c = RefCell::new(dp.I2C1.i2c((gpiob.pb6, gpiob.pb7), 400.kHz(), &mut rcc));
+    let mut imu = match Imu::new(
+        RefCellDevice::new(&i2c),
+        RefCellDevice::new(&i2c),
+        &mut delay,
+    ) {
+        Ok(imu) => Some(imu),
+        Err(_) => {
+            defmt::error!("IMU not answering: no dead reckoning");
+            None
+        }
+    };
+    let mut screen = Ssd1306::new(
+        I2CDisplayInterface::new(RefCellDevice::new(&i2c)),
+        DisplaySize128x64,
+        DisplayRotation::Rotate0,
+    )
+    .into_buffered_graphics_mode();
+    let screen_ok = screen.init().is_ok();
+
+    // The application in CCM.
+    let cfg = AppConfig::new(earth, STEP_LENGTH_M);
+    // SAFETY: the only reference ever taken to RECEIVER, here, once, before any interrupt
+    // that could run is enabled; no interrupt touches it.
+    let slot = unsafe { &mut *core::ptr::addr_of_mut!(RECEIVER) };
+    let Ok(receiver) = Receiver::emplace(slot, cfg) else {
+        defmt::panic!("default configuration refused");
+    };
+    let fe_cfg = FrontendConfig::default();
+    let rate = fe_cfg.sample_rate_hz;
+    let Ok(mut frontend) = Frontend::new(fe_cfg) else {
+        defmt::panic!("front-end configuration refused");
+    };
+
+    // ADC samples flow through the queue from the DRDY interrupt.
+    let Some(queue) = cortex_m::singleton!(: Queue<Sample, QUEUE_LEN> = Queue::new()) else {
+        defmt::panic!("queue taken twice");
+    };
+    let (producer, mut consumer): (Producer<'static, Sample>, Consumer<'static, Sample>) =
+        queue.split();
+    let mut drdy = gpioc.pc7.into_pull_up_input();
+    drdy.make_interrupt_source(&mut syscfg);
+    drdy.trigger_on_edge(&mut exti, Edge::Falling);
+    drdy.enable_interrupt(&mut exti);
+    cortex_m::interrupt::free(|cs| {
+        SAMPLER.borrow(cs).replace(Some(Sampler {
+            adc,
+            drdy,
+            queue: producer,
+        }));
+    });
+    // SAFETY: the handler and its state are in place; unmasking cannot break a critical section.
+    unsafe { cortex_m::peripheral::NVIC::unmask(pac::Interrupt::EXTI9_5) };
+
+    let mut imu_tick = dp.TIM2.counter_hz(&mut rcc);
+    if imu_tick.start(100.Hz()).is_err() {
+        defmt::error!("IMU timer refused 100 Hz");
+    }
+    defmt::info!(
+        "receiver running (ADC {=bool}, display {=bool})",
+        adc_ok,
+        screen_ok
+    );
+
+    let mut taken: u32 = 0;
     loop {
-        cortex_m::asm::wfi();
+        while let Some(sample) = consumer.dequeue() {
+            taken = taken.wrapping_add(1);
+            match frontend.push(sample.volts, sample.clipped) {
+                Ok(Some(pulse)) => {
+                    let model = match pulse.measurement {
+                        PulseMeasurement::Field(h) => {
+                            let _ = session_log::write_pulse(
+                                &mut log,
+                                f64::from(pulse.t_s),
+                                &h,
+                                pulse.src,
+                            );
+                            receiver.on_pulse(pulse.t_s, &h, pulse.src).ok()
+                        }
+                        _ => Some(receiver.display_model()),
+                    };
+                    if let Some(model) = model
+                        && screen_ok
+                    {
+                        screen.clear(BinaryColor::Off).ok();
+                        if display::draw(&model, &mut screen).is_err() || screen.flush().is_err() {
+                            defmt::warn!("display write failed");
+                        }
+                    }
+                }
+                Ok(None) => {}
+                Err(_) => defmt::warn!("front end refused a sample"),
+            }
+        }
+        if imu_tick.wait().is_ok()
+            && let Some(imu) = imu.as_mut()
+        {
+            let t = seconds(taken, rate);
+            match imu.read() {
+                Ok(r) => {
+                    let _ = session_log::write_imu(
+                        &mut log,
+                        f64::from(t),
+                        &r.acc,
+                        &r.gyr,
+                        Some(&r.mag),
+                    );
+                    if receiver.on_imu(t, &r.acc, &r.gyr, Some(&r.mag)).is_err() {
+                        defmt::warn!("IMU sample refused");
+                    }
+                }
+                Err(_) => defmt::warn!("IMU read failed"),
+            }
+        }
+        let dropped = DROPPED.load(Ordering::Relaxed);
+        if dropped != 0 {
+            defmt::warn!(
+                "{=u32} ADC samples dropped of {=u32}",
+                dropped,
+                SAMPLES.load(Ordering::Relaxed)
+            );
+            DROPPED.store(0, Ordering::Relaxed);
+        }
     }
 }
