@@ -5,6 +5,7 @@
 //! displacement since the previous pulse (true motion of a seeded `paper` scenario) and
 //! the attitude. Regenerate with
 //! `cargo run -p hal-sim --release -- budget-data --out firmware/src/bin/support/budget_data.rs`.
+use crate::bus::if_signal::{AnalogChain, AnalogInput, IF_HZ, IfSignal};
 use crate::physics::{M3, V3};
 use crate::scenario::{Preset, ScenarioConfig, simulate};
 use anyhow::Result;
@@ -58,7 +59,52 @@ pub fn source(seed: u64) -> String {
         );
     }
     s.push_str("];\n");
+    if_window(&sim, &mut s);
     s
+}
+
+/// IF samples (8 kSPS) of a 0.5 s window around one mid-search pulse, as the ADC would
+/// deliver them behind the simulated analog chain, for the on-target DSP budget.
+fn if_window(sim: &crate::scenario::Simulation, s: &mut String) {
+    const FS: f64 = 8000.0;
+    const N: usize = 4000;
+    let pulses: Vec<f64> = sim.session.pulses().map(|p| p.t).collect();
+    let Some(&tc) = pulses.get(pulses.len() / 2) else {
+        return;
+    };
+    let chain = AnalogChain::default();
+    let noise = &sim.draw.config.sensors.pulse;
+    let mut input = IfSignal::new(
+        &sim.world,
+        chain,
+        noise.sigma_bkg_a_per_m,
+        noise.k_sen,
+        FS,
+        7,
+    );
+    let t0 = tc - 0.3;
+    let cal = chain.calibration();
+    let h = sim
+        .world
+        .field_body(0, tc)
+        .map_or([0.0; 3], |h| [h.x, h.y, h.z]);
+    let _ = writeln!(
+        s,
+        "\n/// Sample rate of [`IF_VOLTS`], Hz (IF {IF_HZ} Hz).\npub const IF_RATE_HZ: f32 = {FS:?};\n/// True field (A/m, body frame) of the pulse centred at {tc:.4} s in [`IF_VOLTS`] (overall sign arbitrary).\npub const IF_PULSE_H: [f32; 3] = {};\n/// The analog chain's calibration: gain A/m per V, offset V, phase rad.\npub const IF_CALIBRATION: ([f32; 3], [f32; 3], [f32; 3]) = ({}, {}, {});\n/// Coil voltages at the ADC from {t0:.4} s, one row per sample.\npub const IF_VOLTS: [[f32; 3]; {N}] = [",
+        triple(h.map(|x| x as f32)),
+        triple(cal.gain_a_per_m_per_v),
+        triple(cal.offset_v),
+        triple(cal.phase_rad),
+    );
+    for k in 0..N {
+        let v = input.volts(t0 + k as f64 / FS);
+        let _ = writeln!(
+            s,
+            "    {},",
+            triple([v[0] as f32, v[1] as f32, v[2] as f32])
+        );
+    }
+    s.push_str("];\n");
 }
 
 /// Writes the source file.

@@ -25,6 +25,7 @@ use cortex_m_semihosting::{debug, hprintln};
 use firmware::estimate::{
     Attitude, DefaultSog, Displacement, Estimator, Phase, Pulse, SOG_CAPACITY, SogConfig,
 };
+use firmware::frontend::{Calibration, Frontend, FrontendConfig};
 use firmware::{Vec3, dipole};
 use icount::InstructionCounter;
 
@@ -56,6 +57,41 @@ fn replay(counter: &mut InstructionCounter) -> (u64, u64, u32, u32) {
 }
 
 /// The recorded step `s` as estimator inputs.
+/// Runs the pulse DSP over the recorded IF window (one pulse in 0.5 s of signal) and
+/// returns (instructions for the window, worst single sample, field error relative to
+/// the true |H|, whether exactly one field pulse came out).
+fn dsp(counter: &mut InstructionCounter) -> (u64, u64, f32, bool) {
+    let (gain, offset, phase) = budget_data::IF_CALIBRATION;
+    let cfg = FrontendConfig {
+        sample_rate_hz: budget_data::IF_RATE_HZ,
+        calibration: Calibration {
+            gain_a_per_m_per_v: gain,
+            offset_v: offset,
+            phase_rad: phase,
+        },
+        ..FrontendConfig::default()
+    };
+    let Ok(mut frontend) = Frontend::new(cfg) else {
+        return (0, 0, f32::INFINITY, false);
+    };
+    let (mut total, mut worst, mut fields) = (0u64, 0u64, 0u32);
+    let mut error = f32::INFINITY;
+    let truth = v(budget_data::IF_PULSE_H);
+    for volts in budget_data::IF_VOLTS.iter() {
+        let (out, n) = counter.measure(|| frontend.push(*volts, false));
+        total += n;
+        worst = worst.max(n);
+        if let Ok(Some(p)) = out
+            && let Some(h) = p.field()
+        {
+            fields += 1;
+            // The overall sign is arbitrary: compare with the closer of ±truth.
+            error = (h - truth).norm().min((h + truth).norm()) / truth.norm();
+        }
+    }
+    (total, worst, error, fields == 1)
+}
+
 fn inputs(s: &budget_data::Step) -> (Displacement, Attitude, Pulse) {
     let motion = Displacement::with_sigmas(v(s.translation), v(s.rotation), 0.04, 0.01);
     let attitude = Attitude::with_sigmas(v(s.attitude), 0.02, 0.05);
@@ -120,6 +156,11 @@ fn main() -> ! {
     hprintln!("budget step_mean {}", sum / u64::from(steps.max(1)));
     hprintln!("budget steps {}", steps);
     hprintln!("budget failures {}", failures);
+    let (dsp_total, dsp_worst_sample, dsp_error, dsp_one_pulse) = dsp(&mut counter);
+    hprintln!("budget dsp_window_0_5s {}", dsp_total);
+    hprintln!("budget dsp_worst_sample {}", dsp_worst_sample);
+    hprintln!("budget dsp_vector_error_ppm {}", (dsp_error * 1e6) as u32);
+    hprintln!("budget dsp_pulses {}", u32::from(dsp_one_pulse));
     hprintln!("budget stack_high_water {}", stack::high_water());
     hprintln!("budget stack_size {}", stack::size());
     profile(&mut counter);
