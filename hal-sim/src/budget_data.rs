@@ -90,7 +90,7 @@ fn if_window(sim: &crate::scenario::Simulation, s: &mut String) {
         .map_or([0.0; 3], |h| [h.x, h.y, h.z]);
     let _ = writeln!(
         s,
-        "\n/// Sample rate of [`IF_VOLTS`], Hz (IF {IF_HZ} Hz).\npub const IF_RATE_HZ: f32 = {FS:?};\n/// True field (A/m, body frame) of the pulse centred at {tc:.4} s in [`IF_VOLTS`] (overall sign arbitrary).\npub const IF_PULSE_H: [f32; 3] = {};\n/// The analog chain's calibration: gain A/m per V, offset V, phase rad.\npub const IF_CALIBRATION: ([f32; 3], [f32; 3], [f32; 3]) = ({}, {}, {});\n/// Coil voltages at the ADC from {t0:.4} s, one row per sample.\npub const IF_VOLTS: [[f32; 3]; {N}] = [",
+        "\n/// Sample rate of [`IF_VOLTS`], Hz (IF {IF_HZ} Hz).\npub const IF_RATE_HZ: f32 = {FS:?};\n/// True field (A/m, body frame) of the pulse centred at {tc:.4} s in [`IF_VOLTS`] (overall sign arbitrary).\npub const IF_PULSE_H: [f32; 3] = {};\n/// The analog chain's calibration: gain A/m per V, offset V, phase rad.\npub const IF_CALIBRATION: ([f32; 3], [f32; 3], [f32; 3]) = ({}, {}, {});\n/// Coil voltages at the ADC from {t0:.4} s, one row per sample.\npub static IF_VOLTS: [[f32; 3]; {N}] = [",
         triple(h.map(|x| x as f32)),
         triple(cal.gain_a_per_m_per_v),
         triple(cal.offset_v),

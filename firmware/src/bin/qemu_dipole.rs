@@ -8,8 +8,11 @@
 #![no_std]
 #![no_main]
 
+#[path = "support/exit.rs"]
+mod exit;
+
 use cortex_m_rt::entry;
-use cortex_m_semihosting::{debug, hprintln};
+use cortex_m_semihosting::hprintln;
 use firmware::{Vec3, dipole};
 
 /// Deterministic inputs spanning the search: ranges from 0.2 to 150 m, moments across
@@ -61,21 +64,5 @@ fn main() -> ! {
         }
     }
     hprintln!("done {}", n);
-    debug::exit(if ok {
-        debug::EXIT_SUCCESS
-    } else {
-        debug::EXIT_FAILURE
-    });
-    loop {
-        cortex_m::asm::wfi();
-    }
-}
-
-#[panic_handler]
-fn panic(info: &core::panic::PanicInfo) -> ! {
-    hprintln!("panic: {}", info);
-    debug::exit(debug::EXIT_FAILURE);
-    loop {
-        cortex_m::asm::wfi();
-    }
+    exit::exit(ok)
 }
