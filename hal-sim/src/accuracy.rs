@@ -132,6 +132,10 @@ struct Tracker {
     result: RunResult,
     step_time_s: f64,
     steps: usize,
+    trace: bool,
+    near: (f64, f64),
+    truth_next: V3,
+    last: Option<firmware::estimate::StepReport>,
 }
 
 impl Tracker {
@@ -157,6 +161,10 @@ impl Tracker {
             },
             step_time_s: 0.0,
             steps: 0,
+            trace: std::env::var("SOG_TRACE").is_ok_and(|v| v == seed.to_string()),
+            last: None,
+            near: (0.0, 0.0),
+            truth_next: V3::zeros(),
         }
     }
 
@@ -180,6 +188,39 @@ impl Tracker {
             r.error_at_10m = Some(err);
         }
         let cov = M3::from_fn(|i, j| est.cov[(i, j)] as f64);
+        if self.trace {
+            let d2 = cov
+                .try_inverse()
+                .map(|inv| (e.transpose() * inv * e)[(0, 0)]);
+            let l = self.last;
+            eprintln!(
+                "k {:3} dist {:6.2} truth [{:7.2} {:7.2} {:6.2}] err {:6.3} [{:6.3} {:6.3} {:6.3}] sd [{:.3} {:.3} {:.3}] md2 {:7.2} n {:3} wmax {:.3} s {:.4}±{:.4} |m| {:.4} d2best {:7.2} pr {} mg {} sp {} near d2 {:7.2} w {:.2e}",
+                r.pulses,
+                truth.norm(),
+                truth.x,
+                truth.y,
+                truth.z,
+                err,
+                e.x,
+                e.y,
+                e.z,
+                cov[(0, 0)].sqrt(),
+                cov[(1, 1)].sqrt(),
+                cov[(2, 2)].sqrt(),
+                d2.unwrap_or(f64::NAN),
+                est.n_components,
+                est.max_weight,
+                est.scale,
+                est.scale_sigma,
+                est.moment.norm(),
+                l.map_or(0.0, |l| l.best_d2),
+                l.map_or(0, |l| l.pruned),
+                l.map_or(0, |l| l.merged),
+                l.map_or(0, |l| l.split),
+                self.near.0,
+                self.near.1,
+            );
+        }
         if let Some(inv) = cov.try_inverse() {
             r.evaluated_steps += 1;
             if (e.transpose() * inv * e)[(0, 0)] <= 9.0 {
@@ -198,7 +239,54 @@ impl Tracker {
         let start = Instant::now();
         let out = filter.step(motion, attitude, pulse);
         self.step_time_s += start.elapsed().as_secs_f64();
+        if self.trace && std::env::var("SOG_NEAR").is_ok() {
+            let mut v: Vec<(f64, f32, firmware::Vec3, firmware::Vec3)> = filter
+                .components()
+                .map(|(w, p, c)| {
+                    let cd = M3::from_fn(|i, j| c[(i, j)] as f64);
+                    let e = V3::new(p.x as f64, p.y as f64, p.z as f64) - self.truth_next;
+                    let d2 = cd
+                        .try_inverse()
+                        .map_or(f64::NAN, |inv| (e.transpose() * inv * e)[(0, 0)]);
+                    (
+                        d2,
+                        w,
+                        p,
+                        firmware::Vec3::new(c[(0, 0)].sqrt(), c[(1, 1)].sqrt(), c[(2, 2)].sqrt()),
+                    )
+                })
+                .collect();
+            v.sort_by(|a, b| a.0.total_cmp(&b.0));
+            for (d2, w, p, sd) in v.iter().take(4) {
+                eprintln!(
+                    "   near d2 {d2:8.2} w {w:.2e} p [{:.2} {:.2} {:.2}] sd [{:.2} {:.2} {:.2}] truth [{:.2} {:.2} {:.2}]",
+                    p.x,
+                    p.y,
+                    p.z,
+                    sd.x,
+                    sd.y,
+                    sd.z,
+                    self.truth_next.x,
+                    self.truth_next.y,
+                    self.truth_next.z
+                );
+            }
+        }
+        if self.trace {
+            self.near = filter
+                .components()
+                .map(|(w, p, c)| {
+                    let c = M3::from_fn(|i, j| c[(i, j)] as f64);
+                    let e = V3::new(p.x as f64, p.y as f64, p.z as f64) - self.truth_next;
+                    let d2 = c
+                        .try_inverse()
+                        .map_or(f64::NAN, |inv| (e.transpose() * inv * e)[(0, 0)]);
+                    (d2, w as f64)
+                })
+                .fold((f64::INFINITY, 0.0), |a, b| if b.0 < a.0 { b } else { a });
+        }
         self.steps += 1;
+        self.last = out.ok();
         if let Ok(report) = out
             && report.outcome == firmware::estimate::StepOutcome::Reinitialized
         {
@@ -321,6 +409,13 @@ pub fn run_open_loop(case: Case, seed: u64, noise: &MotionNoise) -> RunResult {
     let start = sim.world.rescuer_state(0.0).p;
     let tx_p = V3::from(tx.position);
     let mut tracker = Tracker::new(seed, (tx_p - start).xy().norm());
+    if tracker.trace {
+        eprintln!(
+            "scale {scale:.4} moment {:?} |m| {:.4}",
+            tx.moment,
+            V3::from(tx.moment).norm()
+        );
+    }
     let mut previous: Option<(V3, M3)> = None;
     for pulse in sim.session.pulses() {
         let s = sim.world.rescuer_state(pulse.t);
@@ -332,6 +427,7 @@ pub fn run_open_loop(case: Case, seed: u64, noise: &MotionNoise) -> RunResult {
         };
         let attitude = noisy_attitude(&mut rng, noise, &s.rpy, exact);
         let h = firmware::Vec3::new(pulse.h[0] as f32, pulse.h[1] as f32, pulse.h[2] as f32);
+        tracker.truth_next = tx_p - s.p;
         tracker.step(
             &mut filter,
             &motion,
@@ -439,6 +535,13 @@ pub fn run_closed_loop(seed: u64, noise: &MotionNoise) -> RunResult {
         return Tracker::new(seed, d0).finish();
     };
     let mut tracker = Tracker::new(seed, d0);
+    if tracker.trace {
+        eprintln!(
+            "scale {scale:.4} moment {:?} |m| {:.4}",
+            tx.moment,
+            V3::from(tx.moment).norm()
+        );
+    }
     let ideal = (d0 / tx.period_s).ceil() as usize;
     tracker.result.ideal_steps = Some(ideal);
     let mut walker = Walker {
@@ -474,6 +577,7 @@ pub fn run_closed_loop(seed: u64, noise: &MotionNoise) -> RunResult {
             None => Displacement::zero(),
         };
         let attitude = noisy_attitude(&mut rng, noise, &rpy, false);
+        tracker.truth_next = tx_p - walker.p;
         tracker.step(
             &mut filter,
             &motion,

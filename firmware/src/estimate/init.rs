@@ -79,8 +79,14 @@ pub(crate) fn initialize<const N: usize>(
     if z_norm.is_nan() || z_norm <= 0.0 {
         return 0;
     }
-    // Moments in internal units (mA·m²).
-    let (m_min, m_max) = (config.m_min * MOMENT_SCALE, config.m_max * MOMENT_SCALE);
+    // Moments in internal units (mA·m²), the interval widened by the pulse's own noise
+    // (see `noise_widening`): the grid must cover every transmitter whose true moment
+    // lies in [m_min, m_max], not only those the noisy pulse would imply exactly.
+    let widen = noise_widening(r_var, z_norm);
+    let (m_min, m_max) = (
+        config.m_min * MOMENT_SCALE / widen,
+        config.m_max * MOMENT_SCALE * widen,
+    );
     // ICRA eq. 16 (internal units: |H| = K_H m / (4π r³) on the equator).
     let r_min = libm::cbrtf(K_H * m_min / (4.0 * PI * z_norm));
     let log_ratio = libm::logf(m_max / m_min) / 3.0;
@@ -130,6 +136,27 @@ pub(crate) fn initialize<const N: usize>(
         }
     }
     out.len()
+}
+
+/// Factor by which the moment interval of the initial grid is widened at each end to
+/// account for the noise of the initializing pulse.
+///
+/// The moment the dipole inverse infers from a pulse is proportional to the pulse,
+/// `m = 4π r³ (3/2 (z·u) u − z)`, so a relative error `ε` of `z` is the same relative
+/// error of the inferred `|m|` and, through `r ∝ |m|^⅓`, shifts the range interval of
+/// ICRA eq. 16. With per-axis noise variance `R` (ICRA eq. 10) the relative error of a
+/// pulse of norm `|z|` is at most `ε = √(3R) / |z|`; widening by `1 + 2ε` (2σ) keeps a
+/// transmitter near `m_max` (or `m_min`) inside the grid when the first pulse happens
+/// to be read high (or low). At the lowest initialization SNR (10) this is ≈ 1.35; for
+/// strong pulses it tends to `1 + 2√3 k_sen` ≈ 1.1.
+pub(crate) fn noise_widening(r_var: f32, z_norm: f32) -> f32 {
+    let eps = libm::sqrtf(3.0 * r_var.max(0.0)) / z_norm;
+    // A zero pulse (ε = ∞) widens by the cap; NaN inputs leave the interval as it is.
+    if eps.is_nan() {
+        1.0
+    } else {
+        1.0 + 2.0 * eps.min(1.0)
+    }
 }
 
 /// The 3-D range interval along azimuth (cos, sin) at height `zc` where the dipole
@@ -277,17 +304,37 @@ mod tests {
             assert!(n > 50 && n <= 144, "n = {n}");
             let w: f32 = v.iter().map(|c| libm::expf(c.log_w)).sum();
             assert!((w - 1.0).abs() < 1e-3, "weights sum {w}");
+            let widen = noise_widening(1e-6, z_body.norm());
             for c in v.iter() {
                 let h = measure(&c.x).unwrap().h;
                 assert!((h - z_body).norm() < 1e-4 * z_body.norm());
                 let mnorm = Vec3::new(c.x[I_M], c.x[I_M + 1], c.x[I_M + 2]).norm() / MOMENT_SCALE;
                 assert!(
-                    mnorm > config.m_min * 0.99 && mnorm < config.m_max * 1.01,
+                    mnorm > config.m_min / widen * 0.99 && mnorm < config.m_max * widen * 1.01,
                     "{mnorm}"
                 );
                 assert!(nalgebra::Cholesky::new(c.p().cast::<f64>()).is_some());
             }
         }
+    }
+
+    #[test]
+    fn noisy_first_pulse_still_covers_the_moment_range() {
+        // A transmitter at m_max whose first pulse reads 1.5σ high (SNR 10): without the
+        // widening the inferred moment interval would end below the true moment.
+        let z_norm = 10.0f32;
+        let r_var = 1.0 + (0.03 * z_norm) * (0.03 * z_norm);
+        let eps = libm::sqrtf(3.0 * r_var) / z_norm;
+        let w = noise_widening(r_var, z_norm);
+        assert!(w >= 1.0 + 1.5 * eps && w < 1.5, "{w}");
+        // Strong pulses: only the 3 % sensor error remains.
+        let w = noise_widening((0.03f32 * 1e3).powi(2), 1e3);
+        assert!(
+            (w - (1.0 + 2.0 * libm::sqrtf(3.0) * 0.03)).abs() < 1e-4,
+            "{w}"
+        );
+        assert_eq!(noise_widening(1.0, 0.0), 1.0 + 2.0);
+        assert_eq!(noise_widening(f32::NAN, 1.0), 1.0);
     }
 
     #[test]
