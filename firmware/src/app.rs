@@ -91,7 +91,12 @@ impl AppConfig {
     /// height taken from them.
     pub fn new(earth_field_ut: Vec3, step_length_m: Option<f32>) -> Self {
         let motion = MotionConfig::new(earth_field_ut, step_length_m);
-        let sog = SogConfig::default().with_calibrated_step(step_length_m.is_some());
+        // The filter's scale prior is the step-length model's own relative uncertainty
+        // (≈2 % calibrated, ≈20 % for the uncalibrated default), so both agree.
+        let sog = SogConfig {
+            scale_sigma: motion.step_length.scale_sigma(),
+            ..SogConfig::default()
+        };
         let guidance = GuidanceConfig {
             receiver_height_m: sog.receiver_height,
             ..GuidanceConfig::default()

@@ -11,7 +11,14 @@
 //!   with the previous walking direction, and flipped when |H| has not grown over the
 //!   last [`GuidanceConfig::flip_after_m`] walked — the classical directional search
 //!   (ICRA 2006 §II-A: "if after following the initial direction along 5 m the signal
-//!   decreases, the rescuer must turn and follow the opposite direction").
+//!   decreases, the rescuer must turn and follow the opposite direction"). Far away the
+//!   pulses are barely above the background noise (a pulse is heard from |H| ≈ 3 σ_bkg,
+//!   where one pulse's direction is off by tens of degrees), so the direction is the
+//!   principal axis of the sign-free tensor `Σ w h_xy h_xyᵀ / |h_xy|²` of the recent
+//!   pulses (forgotten over [`GuidanceConfig::flux_memory_m`] walked), each weighted by
+//!   its signal-to-noise ratio `w = s² / (1 + s²)`, `s = |H| / (√3 σ_bkg)`; and the
+//!   flip rule compares a smoothed |H| (mean of the last pulses), so that one noisy pulse
+//!   neither flips nor holds the direction.
 //! - [`Status::Localized`]: once the receiver lies outside the belief's 3σ ellipse
 //!   (horizontal squared Mahalanobis distance of the receiver from the mixture mean,
 //!   IROS eq. 18, above [`GuidanceConfig::go_to_mean_d2`]) and the mixture is
@@ -89,6 +96,11 @@ pub struct GuidanceConfig {
     /// Receiver height above the snow (m): the displayed depth is the burial depth below
     /// the surface, `−p_z − receiver_height`.
     pub receiver_height_m: f32,
+    /// Background noise per field component (A/m), ICRA 2006 eq. 10: weights the
+    /// flux-line pulses by their signal-to-noise ratio.
+    pub sigma_bkg: f32,
+    /// Walked distance (m) over which the flux-line direction forgets past pulses.
+    pub flux_memory_m: f32,
 }
 
 impl Default for GuidanceConfig {
@@ -103,6 +115,8 @@ impl Default for GuidanceConfig {
             probe_timeout_pulses: 16,
             bracket_m: 0.5,
             receiver_height_m: 1.0,
+            sigma_bkg: 2.59e-9,
+            flux_memory_m: 3.0,
         }
     }
 }
@@ -152,7 +166,11 @@ pub struct Guidance {
     cfg: GuidanceConfig,
     /// Previous flux-line walking direction in `G` (unit, horizontal).
     flux_dir: Option<[f32; 2]>,
-    /// Largest |H| since the last flip, and the distance walked since it was seen.
+    /// Sign-free horizontal direction tensor `[xx, xy, yy]` of the recent pulses.
+    flux_tensor: [f32; 3],
+    /// Smoothed |H| (A/m; 0 before the first pulse).
+    smooth_h: f32,
+    /// Largest smoothed |H| since the last flip, and the distance walked since it was seen.
     best_h: f32,
     walked_since_best: f32,
     /// Latched: the belief has been trusted (walking to the mean).
@@ -173,6 +191,8 @@ impl Guidance {
         Self {
             cfg,
             flux_dir: None,
+            flux_tensor: [0.0; 3],
+            smooth_h: 0.0,
             best_h: 0.0,
             walked_since_best: 0.0,
             localized: false,
@@ -253,7 +273,17 @@ impl Guidance {
 
     /// Flux-line direction in `G` (rad) for the field `h` (ICRA §II-A, IROS §III-C).
     fn flux_line(&mut self, h: &Vec3, walked: f32, yaw: f32) -> Option<f32> {
-        let n = h.norm();
+        let raw = h.norm();
+        if !raw.is_finite() {
+            return None;
+        }
+        // Smoothed |H|: the mean of about the last three pulses.
+        self.smooth_h = if self.smooth_h > 0.0 {
+            0.5 * (self.smooth_h + raw)
+        } else {
+            raw
+        };
+        let n = self.smooth_h;
         // Classical rule: if |H| has not grown over the last `flip_after_m`, turn around.
         if n > self.best_h {
             self.best_h = n;
@@ -271,9 +301,47 @@ impl Guidance {
         }
         // The previous walking direction (or, first, the device's heading) picks the sign.
         let reference = self.flux_dir.unwrap_or([libm::cosf(yaw), libm::sinf(yaw)]);
-        let d = flux_direction(h, &reference)?;
+        let axis = self.average_axis(h, walked)?;
+        let d = flux_direction(&Vec3::new(axis[0], axis[1], 0.0), &reference)?;
         self.flux_dir = Some(d);
         Some(libm::atan2f(d[1], d[0]))
+    }
+
+    /// Adds the pulse `h` to the sign-free direction tensor (after forgetting over the
+    /// distance `walked`) and returns its principal horizontal axis (unit, either sign).
+    fn average_axis(&mut self, h: &Vec3, walked: f32) -> Option<[f32; 2]> {
+        let c = &self.cfg;
+        let keep = if c.flux_memory_m > 0.0 {
+            libm::expf(-walked / c.flux_memory_m)
+        } else {
+            0.0
+        };
+        for v in self.flux_tensor.iter_mut() {
+            *v *= keep;
+        }
+        let nh2 = h.x * h.x + h.y * h.y;
+        // A field within ~0.5° of vertical has no usable horizontal direction.
+        if nh2.is_finite() && nh2 > 1e-4 * h.norm_squared() && nh2 > 0.0 {
+            let s2 = if c.sigma_bkg > 0.0 {
+                h.norm_squared() / (3.0 * c.sigma_bkg * c.sigma_bkg)
+            } else {
+                f32::MAX
+            };
+            let w = if s2.is_finite() { s2 / (1.0 + s2) } else { 1.0 };
+            self.flux_tensor[0] += w * h.x * h.x / nh2;
+            self.flux_tensor[1] += w * h.x * h.y / nh2;
+            self.flux_tensor[2] += w * h.y * h.y / nh2;
+        }
+        let [a, b, d] = self.flux_tensor;
+        if a + d <= 0.0 || !(a + d).is_finite() {
+            return None;
+        }
+        let mut m = crate::Mat3::zeros();
+        m[(0, 0)] = a;
+        m[(0, 1)] = b;
+        m[(1, 0)] = b;
+        m[(1, 1)] = d;
+        Some(horizontal_axis(&m).0)
     }
 
     /// Localized: walk to the mean, bracket it, or probe.

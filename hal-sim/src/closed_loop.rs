@@ -22,9 +22,26 @@
 //! - stops at "probe here".
 //!
 //! The scenario follows the papers' protocol (start 40–70 m away, random bearing, depth
-//! 0.3–3 m, random moment), except that the rescuer starts where the primary search found
-//! the first signal: when the transmitter is too weak to be received with a usable
-//! signal-to-noise ratio at the drawn distance, the start moves in along the same bearing.
+//! 0.3–3 m, random moment). Where the rescuer starts depends on [`StartMode`]:
+//! - [`StartMode::MoveIn`] (default): where the primary search found a usable signal —
+//!   when the transmitter is too weak to be received with a usable signal-to-noise ratio
+//!   at the drawn distance, the start moves in along the same bearing;
+//! - [`StartMode::PrimarySearch`]: at the drawn distance; until the first pulse is
+//!   received the rescuer walks straight toward the victim (a primary-search strip whose
+//!   centre line passes over the victim), then follows the display.
+//!
+//! [`Policy::DirectionalSearch`] replaces the receiver by the classical directional search
+//! (ICRA 2006 §II-A) as the rescuer's own policy, optimistic as in the paper's simulation
+//! ("the rescuer follows perfectly the flux lines"): the flux line is that of the true
+//! field, followed without lag or heading error (its sign is not known: it is chosen to
+//! agree with the walking direction); |H| is the noisy reading; the direction is reversed when |H| has not grown over
+//! 5 m; the fine (tertiary) search starts when the classical distance reading (|H| of a
+//! nominal beacon on its axis) is below 3 m, or when the flux line was reversed after
+//! passing a peak closer than 8 m (the rescuer goes back to the strongest reading); it is
+//! a cross search with the receiver just above the snow: along the walking direction, then
+//! across it, with 0.5 m then 0.2 m spacing, one pulse per point, each line continued while
+//! |H| grows (reversed when the first point is weaker) and stopped two points after the
+//! maximum; "found" is the rescuer standing at the strongest point of the last line.
 use crate::physics::{GRAVITY_W, M3, V3, body_rate_from_rpy_rates, rotation_from_rpy};
 use crate::receiver_config::{ImuNoise, PulseNoise, ReceiverConfig};
 use crate::rescuer::{Wobble, wrap_pi};
@@ -61,6 +78,34 @@ pub struct ClosedLoopConfig {
     pub cadence_hz: f64,
     /// Relative error of the calibrated step length the receiver is told.
     pub calibration_error: Option<f64>,
+    /// Whether the receiver is told the rescuer's (calibrated) step length; without it
+    /// the firmware's uncalibrated step model applies.
+    pub calibrated: bool,
+    /// Where the rescuer starts.
+    pub start: StartMode,
+    /// Who decides where the rescuer walks.
+    pub policy: Policy,
+}
+
+/// Where a closed-loop rescue starts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+pub enum StartMode {
+    /// Where the signal is usable (|H| ≥ 12 σ_bkg), moved in from the drawn 40–70 m.
+    #[default]
+    MoveIn,
+    /// At the drawn 40–70 m; straight toward the victim until the first pulse.
+    PrimarySearch,
+}
+
+/// Who decides where the rescuer walks.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize)]
+pub enum Policy {
+    /// The firmware's receiver (`app::Receiver`, SOGs and search control).
+    #[default]
+    Receiver,
+    /// The classical directional search with a cross search at the end (see the module
+    /// docs); the receiver application is not run.
+    DirectionalSearch,
 }
 
 impl ClosedLoopConfig {
@@ -75,6 +120,9 @@ impl ClosedLoopConfig {
             step_length_m: 0.56,
             cadence_hz: 1.8,
             calibration_error: None,
+            calibrated: true,
+            start: StartMode::MoveIn,
+            policy: Policy::Receiver,
         }
     }
 }
@@ -150,9 +198,41 @@ pub struct Outcome {
     pub snapshots: Vec<Snapshot>,
     /// Mixture re-initializations.
     pub reinitializations: u32,
+    /// Transmitter moment in W, A·m².
+    pub moment: [f64; 3],
+    /// Transmitter period, s.
+    pub period_s: f64,
+    /// The rescuer's nominal walking speed (step length × cadence), m/s.
+    pub walk_speed_m_s: f64,
+    /// Time of the first received pulse, s.
+    pub first_rx_t: Option<f64>,
+    /// Receiver position at the first received pulse, m.
+    pub first_rx_p: Option<[f64; 3]>,
+    /// Horizontal path walked before the first received pulse, m.
+    pub path_at_first_rx_m: f64,
+    /// Transmitter pulses from the first received one to "probe here" (or "found"),
+    /// counting both (received or not).
+    pub pulses_to_probe: Option<u64>,
+    /// Transmitter pulses from the start to "probe here" (or "found").
+    pub pulses_from_start: Option<u64>,
+    /// Burial depth (below the snow surface) shown at "probe here", m.
+    pub depth_shown_m: Option<f64>,
+    /// Where the rescuer stands at the end (receiver position), m.
+    pub end_p: [f64; 3],
 }
 
 impl Outcome {
+    /// Ideal path from the first received pulse: straight to the victim, horizontally, m.
+    pub fn ideal_from_first_rx_m(&self) -> Option<f64> {
+        self.first_rx_p
+            .map(|p| (V3::from(self.victim) - V3::from(p)).xy().norm())
+    }
+
+    /// Transmitter pulses the ideal straight walk of `distance_m` takes.
+    pub fn ideal_pulses(&self, distance_m: f64) -> f64 {
+        distance_m / self.walk_speed_m_s.max(1e-9) / self.period_s.max(1e-9)
+    }
+
     /// Path walked over the ideal path.
     pub fn path_ratio(&self) -> f64 {
         self.path_m / self.ideal_path_m.max(1e-9)
@@ -181,6 +261,10 @@ const HOLD_OFFSET_M: [f64; 2] = [0.35, -0.1];
 const BOB_M: f64 = 0.02;
 /// Smallest |H| / σ_bkg at the start (the primary search's first usable signal).
 const START_SNR: f64 = 12.0;
+/// Speed of the receiver in the directional search's cross search, m/s.
+const CRAWL_M_S: f64 = 0.5;
+/// Receiver height above the snow in the directional search's cross search, m.
+const CROSS_HEIGHT_M: f64 = 0.2;
 
 fn draw_scenario(cfg: &ClosedLoopConfig, rng: &mut ChaCha8Rng, noise: &PulseNoise) -> Scenario {
     let d0: f64 = rng.random_range(40.0..=70.0);
@@ -191,20 +275,25 @@ fn draw_scenario(cfg: &ClosedLoopConfig, rng: &mut ChaCha8Rng, noise: &PulseNois
         &TransmitterSpec::default(),
         [d0 * bearing.cos(), d0 * bearing.sin(), -depth],
     );
-    let heading = rng.random_range(-PI..PI);
+    let mut heading = rng.random_range(-PI..PI);
     let step_cal =
         cfg.step_length_m * (1.0 + cfg.calibration_error.unwrap_or_else(|| 0.02 * gauss(rng)));
-    // Move the start in along the bearing until the signal is usable.
     let tx_p = V3::from(tx.position);
     let mut d = d0;
     let start_at =
         |d: f64| tx_p - V3::new(d * bearing.cos(), d * bearing.sin(), -depth - HOLD_HEIGHT_M);
-    while d > 8.0
-        && tx
-            .field_at(&start_at(d))
-            .is_none_or(|h| h.norm() < START_SNR * noise.sigma_bkg_a_per_m)
-    {
-        d -= 1.0;
+    match cfg.start {
+        StartMode::MoveIn => {
+            // Move the start in along the bearing until the signal is usable.
+            while d > 8.0
+                && tx
+                    .field_at(&start_at(d))
+                    .is_none_or(|h| h.norm() < START_SNR * noise.sigma_bkg_a_per_m)
+            {
+                d -= 1.0;
+            }
+        }
+        StartMode::PrimarySearch => heading = bearing,
     }
     let mut start = start_at(d);
     start.z = HOLD_HEIGHT_M;
@@ -234,10 +323,29 @@ struct Person {
     phase: f64,
     psi_des: f64,
     wobble: [Wobble; 3],
+    /// Receiver height above the snow, m.
+    hold_height: f64,
+    /// Fine search of the directional search: the receiver is carried straight to this
+    /// point (north, west) at [`CRAWL_M_S`], without steps.
+    crawl_to: Option<[f64; 2]>,
 }
 
 impl Person {
     fn advance(&mut self, cfg: &ClosedLoopConfig) {
+        if let Some(target) = self.crawl_to {
+            let device = self.device_xy();
+            let (dx, dy) = (target[0] - device[0], target[1] - device[1]);
+            let d = dx.hypot(dy);
+            let step = d.min(CRAWL_M_S * DT);
+            if d > 1e-9 {
+                self.c[0] += dx / d * step;
+                self.c[1] += dy / d * step;
+            }
+            self.w = 0.0;
+            self.w_target = 0.0;
+            self.psi_dot = 0.0;
+            return;
+        }
         let err = wrap_pi(self.psi_des - self.psi);
         let cmd = (1.5 * err).clamp(-1.2, 1.2);
         self.psi_dot += (cmd - self.psi_dot) * DT / 0.2;
@@ -250,7 +358,15 @@ impl Person {
             let [f, l] = HOLD_OFFSET_M;
             self.c = [device[0] - (f * c - l * s), device[1] - (f * s + l * c)];
         }
-        self.w += (self.w_target - self.w) * DT / 0.15;
+        // A person asked to stop finishes the step under way: the gait cycle comes to rest
+        // between two steps (the speed decays with 0.15 s, which coasts 0.27 w of a step),
+        // so every step is one whole bob cycle — one acceleration peak, as a real step.
+        let mut target = self.w_target;
+        let into_step = self.phase - self.phase.floor();
+        if target == 0.0 && self.w > 1e-3 && into_step > 0.05 && 1.0 - into_step > 0.27 * self.w {
+            target = 1.0;
+        }
+        self.w += (target - self.w) * DT / 0.15;
         let v = cfg.step_length_m * cfg.cadence_hz * self.w;
         self.c[0] += v * self.psi.cos() * DT;
         self.c[1] += v * self.psi.sin() * DT;
@@ -267,11 +383,13 @@ impl Person {
     fn pose(&self, t: f64) -> Pose {
         let (s, c) = self.psi.sin_cos();
         let [f, l] = HOLD_OFFSET_M;
-        let bob = BOB_M * self.w * (TAU * self.phase).cos();
+        // The bob is a function of the gait phase only (at rest between steps): one dip
+        // and one upward acceleration peak per step, none when standing.
+        let bob = BOB_M * ((TAU * self.phase).cos() - 1.0);
         let p = V3::new(
             self.c[0] + f * c - l * s,
             self.c[1] + f * s + l * c,
-            HOLD_HEIGHT_M + bob,
+            self.hold_height + bob,
         );
         let roll = self.wobble[0].at(t).v + 0.03 * self.w * (PI * self.phase).sin();
         let pitch = 0.1 + self.wobble[1].at(t).v + 0.02 * self.w * (TAU * self.phase).cos();
@@ -326,6 +444,8 @@ struct StepPlan {
     end_phase: Option<f64>,
     acted_pulse: u32,
     stopped_at: f64,
+    /// Turned back after losing the signal (until the next arrow).
+    turned_back: bool,
 }
 
 /// Runs one closed-loop rescue; `on_pulse` sees every pulse's row and the receiver.
@@ -341,10 +461,11 @@ pub fn run(
     let earth = V3::from(earth_field_ut(48.0, 63.0));
     let mut app = AppConfig::new(
         Vec3::new(earth.x as f32, earth.y as f32, earth.z as f32),
-        Some(sc.step_cal as f32),
+        cfg.calibrated.then_some(sc.step_cal as f32),
     );
-    app.sog = sog_config(&receiver_cfg).with_calibrated_step(true);
+    app.sog = sog_config(&receiver_cfg, app.sog);
     app.guidance.receiver_height_m = app.sog.receiver_height;
+    app.guidance.sigma_bkg = app.sog.sigma_bkg;
     let mut rx = Box::new(
         Receiver::new(app).map_err(|e| anyhow::anyhow!("receiver refused its config: {e:?}"))?,
     );
@@ -371,7 +492,13 @@ pub fn run(
             Wobble::random(&mut rng, 0.035, 0.1, 1.0),
             Wobble::random(&mut rng, 0.07, 0.05, 0.5),
         ],
+        hold_height: HOLD_HEIGHT_M,
+        crawl_to: None,
     };
+    let primary = (cfg.start == StartMode::PrimarySearch).then_some(sc.heading);
+    let mut ds = Directional::default();
+    let mut first_rx: Option<(f64, V3, u64, f64)> = None;
+    let mut pulses_at_probe = None;
     let tx_p = V3::from(sc.tx.position);
     let ideal = (tx_p - sc.start).xy().norm();
     let max_path = cfg.max_path_factor * ideal + 20.0;
@@ -424,6 +551,9 @@ pub fn run(
             if let Some(h_w) = sc.tx.field_at(&p1.p)
                 && h_w.norm() >= 3.0 * pulse_noise.sigma_bkg_a_per_m
             {
+                if first_rx.is_none() {
+                    first_rx = Some((centre, p1.p, next_pulse - 1, path_m));
+                }
                 let sigma = pulse_noise
                     .sigma_bkg_a_per_m
                     .hypot(pulse_noise.k_sen * h_w.norm());
@@ -432,7 +562,10 @@ pub fn run(
                     + V3::new(gauss(&mut rng), gauss(&mut rng), gauss(&mut rng)) * sigma)
                     * sign;
                 let h = Vec3::new(h_b.x as f32, h_b.y as f32, h_b.z as f32);
-                if let Ok(display) = rx.on_pulse(centre as f32, &h, None) {
+                if cfg.policy == Policy::DirectionalSearch {
+                    // Optimistic: the classical receiver's field in W, exactly rotated.
+                    ds.on_pulse(centre, &(rot * h_b), &h_w, &p1.p, &mut person);
+                } else if let Ok(display) = rx.on_pulse(centre as f32, &h, None) {
                     let est = rx.estimate();
                     let victim_est = est.map(|e| {
                         [
@@ -467,6 +600,21 @@ pub fn run(
                 }
             }
         }
+        if cfg.policy == Policy::DirectionalSearch {
+            if ds.done(&person) {
+                probe_t = Some(p1.t);
+                pulses_at_probe = Some(next_pulse);
+                break;
+            }
+            if first_rx.is_none() {
+                walk_primary(&mut person, primary, heading_err);
+            } else {
+                ds.check_lost(p1.t, &mut person);
+            }
+            heading_err =
+                ar * heading_err + (1.0 - ar * ar).sqrt() * sigma_heading * gauss(&mut rng);
+            continue;
+        }
         // The rescuer reads the display (with the lag) and acts.
         seen.push_back(Seen {
             t: p1.t,
@@ -482,9 +630,14 @@ pub fn run(
         };
         if view.display.status == Status::Probe {
             probe_t = Some(view.t.max(p1.t));
+            pulses_at_probe = Some(next_pulse);
             break;
         }
-        act(cfg, &mut person, &mut plan, &view, heading_err, p1.t);
+        if view.display.pulses == 0 && first_rx.is_none() {
+            walk_primary(&mut person, primary, heading_err);
+        } else {
+            act(cfg, &mut person, &mut plan, &view, heading_err, p1.t);
+        }
     }
     let end = poses.back().map_or(sc.start, |p| p.p);
     if let Some(r) = rows.last()
@@ -492,10 +645,18 @@ pub fn run(
     {
         snapshots.push(snapshot(&rx, r.t, &V3::from(r.rx), r.display.status));
     }
-    let final_est = rx.estimate().map(|e| {
-        let rx_p = poses.get(1).map_or(end, |p| p.p);
-        rx_p + V3::new(f64::from(e.p.x), f64::from(e.p.y), f64::from(e.p.z))
-    });
+    let final_est = match cfg.policy {
+        Policy::Receiver => rx.estimate().map(|e| {
+            let rx_p = poses.get(1).map_or(end, |p| p.p);
+            rx_p + V3::new(f64::from(e.p.x), f64::from(e.p.y), f64::from(e.p.z))
+        }),
+        // The classical search's estimate is where it found the maximum.
+        Policy::DirectionalSearch => ds.found.map(|f| V3::new(f[0], f[1], tx_p.z)),
+    };
+    let depth_shown_m = match cfg.policy {
+        Policy::Receiver => probe_t.and(rx.display_model().depth_m.map(f64::from)),
+        Policy::DirectionalSearch => None,
+    };
     Ok(Outcome {
         seed: cfg.seed,
         victim: sc.tx.position,
@@ -505,14 +666,255 @@ pub fn run(
         probe_t,
         end_t: t,
         error_h_m: final_est.map(|v| (v - tx_p).xy().norm()),
-        error_z_m: final_est.map(|v| (v.z - tx_p.z).abs()),
+        error_z_m: match cfg.policy {
+            Policy::Receiver => final_est.map(|v| (v.z - tx_p.z).abs()),
+            Policy::DirectionalSearch => None,
+        },
         miss_h_m: (tx_p - end).xy().norm(),
         pulses: rows.len(),
         track,
         rows,
         snapshots,
         reinitializations: rx.stats().reinitializations,
+        moment: sc.tx.moment,
+        period_s: sc.tx.period_s,
+        walk_speed_m_s: cfg.step_length_m * cfg.cadence_hz,
+        first_rx_t: first_rx.map(|f| f.0),
+        first_rx_p: first_rx.map(|f| f.1.into()),
+        path_at_first_rx_m: first_rx.map_or(path_m, |f| f.3),
+        pulses_to_probe: pulses_at_probe
+            .zip(first_rx)
+            .map(|(n, f)| n.saturating_sub(f.2)),
+        pulses_from_start: pulses_at_probe,
+        depth_shown_m,
+        end_p: end.into(),
     })
+}
+
+/// Primary search: straight on along `heading` (with the rescuer's heading error), or
+/// stand when there is none.
+fn walk_primary(person: &mut Person, heading: Option<f64>, heading_err: f64) {
+    match heading {
+        Some(h) => {
+            person.psi_des = h + heading_err;
+            person.w_target = 1.0;
+        }
+        None => person.w_target = 0.0,
+    }
+}
+
+/// Nominal beacon moment of the classical distance reading, A·m² (the geometric mean of
+/// the standard's 3e-3 … 3e-2).
+const DS_NOMINAL_MOMENT: f64 = 9.5e-3;
+/// The classical search's flux-line reversal distance, m (ICRA 2006 §II-A).
+const DS_FLIP_M: f64 = 5.0;
+/// Classical distance reading below which the cross search starts, m.
+const DS_FINE_M: f64 = 3.0;
+/// A reversal after a peak closer than this (classical reading) starts the cross search, m.
+const DS_PEAK_M: f64 = 8.0;
+/// Cross-search lines: (across the walking direction?, spacing m).
+const DS_LINES: [(bool, f64); 4] = [(false, 0.5), (true, 0.5), (false, 0.2), (true, 0.2)];
+/// Most points per cross-search line and direction.
+const DS_MAX_POINTS: u32 = 12;
+
+/// The classical distance reading: the range of a nominal beacon on its axis, m.
+fn classical_distance(h: f64) -> f64 {
+    (2.0 * DS_NOMINAL_MOMENT / (4.0 * PI * h.max(1e-30))).cbrt()
+}
+
+/// One line of the cross search.
+#[derive(Debug, Clone, Copy)]
+struct CrossLine {
+    /// Index into [`DS_LINES`].
+    line: usize,
+    /// Walking direction when the cross search started (north, west), unit.
+    forward: [f64; 2],
+    /// Centre of this line.
+    centre: [f64; 2],
+    /// Direction along the line (±1) and points taken in it.
+    sign: f64,
+    k: u32,
+    reversed: bool,
+    /// Consecutive points weaker than the best.
+    below: u32,
+    /// Strongest reading so far and where.
+    best_h: f64,
+    best_p: [f64; 2],
+    /// Where the next reading is taken (None: the centre, first).
+    target: [f64; 2],
+}
+
+impl CrossLine {
+    fn axis(&self) -> [f64; 2] {
+        let [x, y] = self.forward;
+        if DS_LINES[self.line].0 {
+            [-y, x]
+        } else {
+            [x, y]
+        }
+    }
+
+    fn point(&self, k: u32) -> [f64; 2] {
+        let a = self.axis();
+        let d = self.sign * f64::from(k) * DS_LINES[self.line].1;
+        [self.centre[0] + a[0] * d, self.centre[1] + a[1] * d]
+    }
+}
+
+/// The classical directional search as the rescuer's policy (module docs).
+#[derive(Debug, Clone, Default)]
+struct Directional {
+    /// Flux-line walking direction (north, west), unit.
+    dir: Option<[f64; 2]>,
+    best_h: f64,
+    best_p: [f64; 2],
+    walked_since_best: f64,
+    last_p: Option<[f64; 2]>,
+    cross: Option<CrossLine>,
+    /// The strongest point of the last line, where the rescuer stops.
+    found: Option<[f64; 2]>,
+    /// Time of the last received pulse, s.
+    last_t: f64,
+    /// Turned back after losing the signal (until the next pulse).
+    turned_back: bool,
+}
+
+impl Directional {
+    /// A pulse `h` (A/m in W, sign arbitrary) received at `p`.
+    /// A pulse received at `p`: `h` is the reading (A/m in W, noisy, sign arbitrary),
+    /// `h_true` the field whose flux line the optimistic rescuer follows perfectly.
+    fn on_pulse(&mut self, t: f64, h: &V3, h_true: &V3, p: &V3, person: &mut Person) {
+        self.last_t = t;
+        self.turned_back = false;
+        if self.found.is_some() {
+            return;
+        }
+        let n = h.norm();
+        let here = [p.x, p.y];
+        if let Some(mut c) = self.cross {
+            // Cross search: a reading counts only with the receiver at the point.
+            let dev = person.device_xy();
+            if (dev[0] - c.target[0]).hypot(dev[1] - c.target[1]) > 0.01 {
+                return;
+            }
+            if n > c.best_h {
+                c.best_h = n;
+                c.best_p = c.target;
+                c.below = 0;
+            } else {
+                c.below += 1;
+            }
+            let line_done = if c.k == 0 {
+                false
+            } else if c.below >= 1 && c.k == 1 && !c.reversed {
+                // The first point is weaker: try the other side.
+                c.sign = -c.sign;
+                c.reversed = true;
+                c.k = 0;
+                false
+            } else {
+                (c.reversed && c.k == 1 && c.below >= 1) || c.below >= 2 || c.k >= DS_MAX_POINTS
+            };
+            if line_done {
+                if c.line + 1 == DS_LINES.len() {
+                    self.found = Some(c.best_p);
+                    person.crawl_to = Some(c.best_p);
+                    self.cross = Some(c);
+                    return;
+                }
+                c.line += 1;
+                c.centre = c.best_p;
+                c.sign = 1.0;
+                c.k = 0;
+                c.reversed = false;
+                c.below = 0;
+            }
+            c.k += 1;
+            c.target = c.point(c.k);
+            person.crawl_to = Some(c.target);
+            self.cross = Some(c);
+            return;
+        }
+        // Secondary search: follow the flux line, reverse when |H| stops growing.
+        let walked = self
+            .last_p
+            .map_or(0.0, |q| (here[0] - q[0]).hypot(here[1] - q[1]));
+        self.last_p = Some(here);
+        if n > self.best_h {
+            self.best_h = n;
+            self.best_p = here;
+            self.walked_since_best = 0.0;
+        } else {
+            self.walked_since_best += walked;
+            if self.walked_since_best > DS_FLIP_M {
+                if classical_distance(self.best_h) <= DS_PEAK_M {
+                    // Passed over the peak: back to the strongest reading, fine search.
+                    self.start_cross(self.best_p, person);
+                    return;
+                }
+                if let Some(d) = self.dir.as_mut() {
+                    *d = [-d[0], -d[1]];
+                }
+                self.best_h = n;
+                self.best_p = here;
+                self.walked_since_best = 0.0;
+            }
+        }
+        if classical_distance(n) <= DS_FINE_M {
+            self.start_cross(here, person);
+            return;
+        }
+        let reference = self.dir.unwrap_or([person.psi.cos(), person.psi.sin()]);
+        let hf = Vec3::new(h_true.x as f32, h_true.y as f32, h_true.z as f32);
+        let rf = [reference[0] as f32, reference[1] as f32];
+        if let Some(d) = firmware::guidance::flux_direction(&hf, &rf) {
+            let d = [f64::from(d[0]), f64::from(d[1])];
+            self.dir = Some(d);
+            person.psi_des = d[1].atan2(d[0]);
+            let off = wrap_pi(person.psi_des - person.psi).abs();
+            person.w_target = if off > 0.9 { 0.0 } else { 1.0 };
+        }
+    }
+
+    fn start_cross(&mut self, centre: [f64; 2], person: &mut Person) {
+        let forward = self.dir.unwrap_or([person.psi.cos(), person.psi.sin()]);
+        let c = CrossLine {
+            line: 0,
+            forward,
+            centre,
+            sign: 1.0,
+            k: 0,
+            reversed: false,
+            below: 0,
+            best_h: 0.0,
+            best_p: centre,
+            target: centre,
+        };
+        person.crawl_to = Some(centre);
+        person.hold_height = CROSS_HEIGHT_M;
+        self.cross = Some(c);
+    }
+
+    /// Signal lost for as long as the receiver's timeout in the secondary search: turn
+    /// back once (toward where it was last heard).
+    fn check_lost(&mut self, t: f64, person: &mut Person) {
+        if self.cross.is_none() && !self.turned_back && t - self.last_t > 3.5 {
+            self.turned_back = true;
+            if let Some(d) = self.dir.as_mut() {
+                *d = [-d[0], -d[1]];
+                person.psi_des = d[1].atan2(d[0]);
+                person.w_target = 0.0;
+            }
+        }
+    }
+
+    /// Whether the rescuer stands at the found maximum.
+    fn done(&self, person: &Person) -> bool {
+        self.found.is_some_and(|f| {
+            let d = person.device_xy();
+            (d[0] - f[0]).hypot(d[1] - f[1]) <= 0.01
+        })
+    }
 }
 
 /// The rescuer's reaction to what they saw.
@@ -526,12 +928,21 @@ fn act(
 ) {
     let d = &view.display;
     let Some(arrow) = d.arrow_deg else {
-        // Nothing to follow: stand (before the first signal) or keep going.
+        // Nothing to follow: stand (before the first signal) or keep going; when the
+        // signal is lost, turn back once (toward where it was last heard).
         if d.pulses == 0 {
             person.w_target = 0.0;
+        } else if d.status == Status::NoSignal && !plan.turned_back {
+            plan.turned_back = true;
+            person.psi_des = person.psi + PI;
+            person.w_target = 0.0;
+        } else {
+            let off = wrap_pi(person.psi_des - person.psi).abs();
+            person.w_target = if off > 0.9 { 0.0 } else { 1.0 };
         }
         return;
     };
+    plan.turned_back = false;
     let desired = view.psi + f64::from(arrow).to_radians() + heading_err;
     let fine =
         d.status == Status::Localized && d.walk_m.is_some_and(|w| f64::from(w) < cfg.fine_walk_m);
@@ -558,7 +969,8 @@ fn act(
         return;
     }
     person.w_target = 0.0;
-    if person.w > 0.05 {
+    if person.w > 1e-3 {
+        // Not yet standing.
         plan.stopped_at = t;
         return;
     }

@@ -13,6 +13,7 @@ pub mod jet;
 pub mod physics;
 pub mod receiver_config;
 pub mod replay;
+pub mod rescue_report;
 pub mod rescuer;
 pub mod routes;
 pub mod scenario;

@@ -52,6 +52,10 @@ enum Command {
     /// motion errors, bus vs measurement pulses, estimator error after replay; a markdown
     /// report.
     SensingReport(hal_sim::sensing_report::Args),
+    /// Seeded closed-loop rescues under the papers' protocol (start 40–70 m away): the
+    /// receiver with and without step-length calibration and the classical directional
+    /// search, steps and probe-point errors against the ideal walk; a markdown report.
+    RescueReport(hal_sim::rescue_report::Args),
 }
 
 fn read_log(path: &Path) -> Result<session::Session> {
@@ -93,5 +97,6 @@ fn main() -> Result<()> {
         Command::BudgetData(args) => budget_data::run(&args),
         Command::Demo(args) => demo::run(&args, &mut stdout.lock()),
         Command::SensingReport(args) => hal_sim::sensing_report::run(&args, &mut stdout.lock()),
+        Command::RescueReport(args) => hal_sim::rescue_report::run(&args, &mut stdout.lock()),
     }
 }

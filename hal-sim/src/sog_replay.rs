@@ -23,8 +23,9 @@ pub struct SogReplay {
     t0: Option<f64>,
 }
 
-/// The filter configuration a receiver with `receiver` settings uses.
-pub fn sog_config(receiver: &ReceiverConfig) -> SogConfig {
+/// The filter configuration a receiver with `receiver` settings uses, on top of `base`
+/// (which keeps, e.g., the scale prior that `AppConfig::new` took from the step model).
+pub fn sog_config(receiver: &ReceiverConfig, base: SogConfig) -> SogConfig {
     SogConfig {
         m_min: receiver.m_min as f32,
         m_max: receiver.m_max as f32,
@@ -33,7 +34,7 @@ pub fn sog_config(receiver: &ReceiverConfig) -> SogConfig {
         receiver_height: receiver.receiver_height_m as f32,
         sigma_bkg: receiver.pulse_noise.sigma_bkg_a_per_m as f32,
         k_sen: receiver.pulse_noise.k_sen as f32,
-        ..SogConfig::default().with_calibrated_step(receiver.pdr.is_some())
+        ..base
     }
 }
 
@@ -48,7 +49,7 @@ pub fn app_config(header: &Header, receiver: &ReceiverConfig) -> AppConfig {
     motion.imu_hz = header.imu_hz as f32;
     let mut cfg = AppConfig::new(earth, step);
     cfg.motion = motion;
-    cfg.sog = sog_config(receiver);
+    cfg.sog = sog_config(receiver, cfg.sog);
     cfg.guidance.receiver_height_m = cfg.sog.receiver_height;
     cfg
 }
