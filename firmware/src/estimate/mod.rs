@@ -272,6 +272,15 @@ pub struct SogConfig {
     /// Consecutive pulses on which every component must be inconsistent before the
     /// mixture is rebuilt.
     pub divergence_pulses: u8,
+    /// Scale-prior divergence gate (squared, 1 dof; 0 disables). A Gaussian that started
+    /// from the calibration prior `s ~ N(1, scale_sigma²)` and was updated consistently
+    /// has its posterior mean `ŝ` distributed as `N(1, scale_sigma² − P_ss)`
+    /// (`P_ss` its posterior variance); a pulse on which every component has
+    /// `(ŝ − 1)² / (scale_sigma² − P_ss)` above this gate counts as inconsistent, like a
+    /// failed innovation gate (see `divergence_pulses`): the mixture has lost the
+    /// transmitter and explains the pulses by a scale the calibration rules out. The
+    /// default 16 is the 4σ gate (1-dof tail ≈ 6e-5); ignored with a known trajectory.
+    pub scale_divergence_d2: f32,
 }
 
 impl Default for SogConfig {
@@ -296,6 +305,7 @@ impl Default for SogConfig {
             split_min_weight: 1e-3,
             divergence_d2: 16.27,
             divergence_pulses: 5,
+            scale_divergence_d2: 16.0,
         }
     }
 }
@@ -347,6 +357,7 @@ impl SogConfig {
             self.split_ratio,
             self.split_min_weight,
             self.divergence_d2,
+            self.scale_divergence_d2,
         ];
         if !finite.iter().all(|v| v.is_finite()) {
             return Err(EstimateError::InvalidConfig);
@@ -370,7 +381,8 @@ impl SogConfig {
             && self.split_ratio > 0.0
             && self.split_min_weight >= 0.0
             && self.divergence_d2 > 0.0
-            && self.divergence_pulses > 0;
+            && self.divergence_pulses > 0
+            && self.scale_divergence_d2 >= 0.0;
         if ok {
             Ok(())
         } else {

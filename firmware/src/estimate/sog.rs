@@ -215,6 +215,23 @@ impl<const N: usize> SogFilter<N> {
 
         let inp = StepInput::new(&u, &q, &z, r_var);
         mark(Phase::Setup);
+        // Scale-prior divergence (see `SogConfig::scale_divergence_d2`): the posterior
+        // mean of a consistent Gaussian has ŝ − 1 ~ N(0, σ_s² − P_ss).
+        let s0 = self.config.scale_sigma * self.config.scale_sigma;
+        let scale_gate = if self.exact_motion() {
+            0.0
+        } else {
+            self.config.scale_divergence_d2
+        };
+        let scale_d2 = |x: &super::model::StateVec, p: &super::model::StateMat| {
+            let v = s0 - p[(I_S, I_S)];
+            if scale_gate <= 0.0 || v <= 0.0 {
+                0.0
+            } else {
+                (x[I_S] - 1.0) * (x[I_S] - 1.0) / v
+            }
+        };
+        let mut best_s2 = f32::INFINITY;
         let mut best_d2 = f32::INFINITY;
         let mut dropped = 0u16;
         let mut i = 0;
@@ -228,6 +245,7 @@ impl<const N: usize> SogFilter<N> {
             match stepped {
                 Ok((x, p, inn)) => {
                     best_d2 = best_d2.min(inn.d2);
+                    best_s2 = best_s2.min(scale_d2(&x, &p));
                     // The weight takes the pulse's likelihood only (eq. 17); see
                     // `attitude_update` for why the attitude's is left out.
                     if let Some(slot) = self.comps.get_mut(i) {
@@ -243,8 +261,9 @@ impl<const N: usize> SogFilter<N> {
             }
         }
 
-        // Divergence: every component inconsistent for several pulses, or none left.
-        if best_d2 > self.config.divergence_d2 {
+        // Divergence: every component inconsistent (innovation gate, or scale many σ off
+        // its calibration prior) for several pulses, or none left.
+        if best_d2 > self.config.divergence_d2 || (scale_gate > 0.0 && best_s2 > scale_gate) {
             self.inconsistent_pulses = self.inconsistent_pulses.saturating_add(1);
         } else {
             self.inconsistent_pulses = 0;
