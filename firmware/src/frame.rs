@@ -72,9 +72,9 @@ pub fn compose_rpy(a: &Rpy, b: &Rpy) -> (Rpy, Mat3, Mat3) {
     let (pa, pb) = (rotation_partials(a), rotation_partials(b));
     let mut ja = Mat3::zeros();
     let mut jb = Mat3::zeros();
-    for i in 0..3 {
-        ja.set_column(i, &rpy_differential(&r, &(pa[i] * rb)));
-        jb.set_column(i, &rpy_differential(&r, &(ra * pb[i])));
+    for (i, (dpa, dpb)) in pa.iter().zip(pb.iter()).enumerate() {
+        ja.set_column(i, &rpy_differential(&r, &(dpa * rb)));
+        jb.set_column(i, &rpy_differential(&r, &(ra * dpb)));
     }
     (rpy_from_rotation(&r), ja, jb)
 }

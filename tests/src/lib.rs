@@ -4,6 +4,8 @@
 // Test support: a failed tool invocation is a failed test, so panicking is the right report.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
+pub mod fuzz;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};

@@ -262,10 +262,17 @@ pub(crate) fn analyse(
     let residual = total - sig_energy - (nf - 1.0) * floor;
     // Allowance: 5 standard deviations of the noise-only residual (6 real dof per block).
     let residual_allow = 5.0 * libm::sqrtf(nf / 3.0) * floor;
+    // Capped: with (almost) no signal energy the ratio would be ±∞ (or NaN), and NaN/∞
+    // must not leave the front end.
     let residual_fraction = residual / sig_energy.max(f32::MIN_POSITIVE);
+    let residual_fraction = if residual_fraction.is_nan() {
+        f32::MAX
+    } else {
+        residual_fraction.clamp(-f32::MAX, f32::MAX)
+    };
     let hq = h.norm_squared();
     let qq = q.norm_squared();
-    let quadrature_fraction = qq / hq.max(f32::MIN_POSITIVE);
+    let quadrature_fraction = (qq / hq.max(f32::MIN_POSITIVE)).min(f32::MAX);
     let overlap = residual > residual_allow + cfg.max_residual_fraction * sig_energy
         || qq > 14.0 * var + cfg.max_quadrature_fraction * hq;
     let saturated = (start..e).any(|i| view.saturated(i));

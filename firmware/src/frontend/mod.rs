@@ -77,6 +77,12 @@ pub const RING_BLOCKS: usize = 256;
 /// Largest FFT (points) of the carrier search; twice [`RING_BLOCKS`] for zero padding.
 pub const MAX_FFT: usize = 2 * RING_BLOCKS;
 
+/// Largest block energy kept ((A/m)²): a field of 10⁶ A/m, nine decades above the
+/// strongest real pulse, and low enough that no sum or square of block phasors over the
+/// ring and the FFT (≤ 512 points) can overflow `f32`. A block above it is treated as
+/// clipped (see `on_block`).
+const ENERGY_CEILING: f32 = 1e12;
+
 /// Counters of what the front end has seen.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct FrontendStats {
@@ -234,8 +240,17 @@ impl Frontend {
 
     fn on_block(&mut self, p: [C32; 3], sat: bool) -> Option<Pulse> {
         let e: f32 = p.iter().map(|z| z.norm_sqr()).sum();
-        // Guard the floor and statistics against an absurd (overflowing) block.
-        let e = if e.is_finite() { e } else { f32::MAX };
+        // Guard the floor and statistics against an absurd (overflowing) block: no real
+        // signal comes near the ceiling, so such a block is clipped garbage. Its energy is
+        // capped so that sums over the whole ring (the detection window, the pulse
+        // analysis) stay finite — an infinite window would become the noise floor and
+        // deafen the receiver — its phasors are zeroed so no ∞/NaN reaches the analysis,
+        // and it is flagged saturated so a pulse containing it is withheld.
+        let (p, e, sat) = if e.is_finite() && e <= ENERGY_CEILING {
+            (p, e, sat)
+        } else {
+            ([C32::ZERO; 3], ENERGY_CEILING, true)
+        };
         let b = self.blocks;
         let i = Self::ring_index(b);
         if let (Some(r), Some(en), Some(s)) = (

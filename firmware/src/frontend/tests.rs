@@ -441,3 +441,35 @@ fn continuous_interferer_is_truncated_and_detection_recovers() {
     let h = last.field().expect("detection recovered");
     assert!((h - signed_truth(&h, specs[1].h)).norm() < 0.02 * h.norm());
 }
+
+/// Fuzz regression (`tests/fuzz/regressions/frontend_push/crash-d75ab9bd…`): finite but
+/// huge samples made every block's energy `f32::MAX`; the detection window's sum
+/// overflowed to +∞, a "truncated" pulse made that the noise floor, and the receiver was
+/// deaf for good. Block energies are now capped so the floor stays finite. Also
+/// `…/crash-96e6cf79…`: such blocks inside a pulse gave a NaN field vector; an
+/// overflowing block is now zeroed and flagged saturated, so the pulse is withheld.
+#[test]
+fn huge_finite_samples_keep_the_noise_floor_finite() {
+    let mut fe = frontend();
+    let quiet = |i: usize| 1e-6 * ((i % 4) as f32 - 1.5);
+    for i in 0..64 * 16 {
+        let v = quiet(i);
+        fe.push([v, -v, v], false).unwrap();
+    }
+    for i in 0..(RING_BLOCKS + 64) * 16 {
+        let v = 1e30 * ((i % 4) as f32 - 1.5);
+        if let Some(p) = fe.push([v, -v, v], false).unwrap() {
+            assert!(
+                !matches!(p.measurement, PulseMeasurement::Field(_)),
+                "{p:?}"
+            );
+            assert!(p.residual_fraction.is_finite() && p.quadrature_fraction.is_finite());
+        }
+        assert!(fe.noise_floor().is_finite(), "floor after sample {i}");
+    }
+    for i in 0..64 * 16 {
+        let v = quiet(i);
+        fe.push([v, -v, v], false).unwrap();
+    }
+    assert!(fe.noise_floor().is_finite());
+}
