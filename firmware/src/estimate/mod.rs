@@ -204,6 +204,10 @@ pub enum EstimateError {
     /// A matrix that must be positive definite was not (typed error of the Cholesky
     /// factorization of the innovation covariance `S`).
     NotPositiveDefinite,
+    /// A finite input outside any physical range (e.g. a displacement of 1e38 m between
+    /// two pulses, angles of 1e38 rad, variances beyond 1e6): refused before it can
+    /// overflow the filter's arithmetic.
+    OutOfRange,
 }
 
 /// Which problem the filter solves.

@@ -185,6 +185,7 @@ impl<const N: usize> SogFilter<N> {
         }
         check_covariance(&motion.cov)?;
         check_covariance(&attitude.cov)?;
+        check_physical_range(motion, attitude)?;
         self.last_t = Some(pulse.t);
         let z = pulse.h * FIELD_SCALE;
 
@@ -351,6 +352,30 @@ impl<const N: usize> Estimator for SogFilter<N> {
     }
 }
 
+/// Largest translation between two pulses the filter accepts (m): a walking rescuer
+/// covers a few metres per pulse; even a long reception gap stays far below this.
+const MAX_TRANSLATION_M: f32 = 1.0e3;
+/// Largest angle magnitude accepted (rad): any orientation is within ±2π; beyond a few
+/// turns f32 angles lose their meaning.
+const MAX_ANGLE_RAD: f32 = 4.0 * core::f32::consts::PI;
+/// Largest variance accepted in a displacement or attitude covariance (m², rad²).
+const MAX_VARIANCE: f32 = 1.0e6;
+
+/// Refuses finite inputs outside any physical range (found by fuzzing: ±f32::MAX
+/// translations and angles overflowed the composition to ±∞ and broke covariances).
+fn check_physical_range(motion: &Displacement, attitude: &Attitude) -> Result<(), EstimateError> {
+    let in_range = motion.translation.norm() <= MAX_TRANSLATION_M
+        && motion.rotation.amax() <= MAX_ANGLE_RAD
+        && attitude.rpy.amax() <= MAX_ANGLE_RAD
+        && (0..6).all(|i| motion.cov[(i, i)] <= MAX_VARIANCE)
+        && (0..3).all(|i| attitude.cov[(i, i)] <= MAX_VARIANCE);
+    if in_range {
+        Ok(())
+    } else {
+        Err(EstimateError::OutOfRange)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::super::testsim::{Outcome, Setup, run};
@@ -472,7 +497,35 @@ mod tests {
         let before = f.clone();
         let motion = Displacement::with_sigmas(Vec3::new(1.0, 0.0, 0.0), Rpy::zeros(), 0.03, 0.005);
         let good = Vec3::new(1e-6, -2e-7, 3e-8);
-        let cases: [(Displacement, Attitude, Pulse, EstimateError); 9] = [
+        let cases: [(Displacement, Attitude, Pulse, EstimateError); 12] = [
+            // Finite but unphysical inputs (the fuzzer's ±f32::MAX cases).
+            (
+                Displacement {
+                    translation: Vec3::new(-f32::MAX, 0.0, 0.0),
+                    ..motion
+                },
+                att,
+                Pulse { h: good, t: 2.0 },
+                EstimateError::OutOfRange,
+            ),
+            (
+                Displacement {
+                    rotation: Rpy::new(0.0, 0.0, f32::MAX),
+                    ..motion
+                },
+                att,
+                Pulse { h: good, t: 2.0 },
+                EstimateError::OutOfRange,
+            ),
+            (
+                motion,
+                Attitude {
+                    rpy: Rpy::new(1e30, 0.0, 0.0),
+                    ..att
+                },
+                Pulse { h: good, t: 2.0 },
+                EstimateError::OutOfRange,
+            ),
             (
                 motion,
                 att,
