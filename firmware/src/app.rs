@@ -137,6 +137,10 @@ pub struct DisplayModel {
     pub pulses: u32,
     /// Time of the last pulse, s.
     pub t_s: f32,
+    /// Fine search: "LIFT" — stand and lift the receiver ≈ 0.4 m and lower it within
+    /// ~2 s (an absolute vertical displacement that pins the depth); steps are not
+    /// counted meanwhile.
+    pub lift: bool,
 }
 
 /// Counters of refused or skipped inputs.
@@ -284,6 +288,10 @@ impl Receiver {
         match r {
             Ok(()) => {
                 self.t_now = t;
+                // The lift prompt lasts while pulses come; without them, steps count again.
+                if self.motion.lift_mode() && !self.display_model().lift {
+                    self.motion.set_lift_mode(false);
+                }
                 Ok(())
             }
             Err(e) => {
@@ -323,6 +331,8 @@ impl Receiver {
             translation: d.translation,
             rotation: d.rotation,
             cov: d.cov,
+            absolute: d.absolute,
+            absolute_cov: d.absolute_cov,
         };
         let (rpy, cov) = motion.attitude();
         let attitude = Attitude { rpy, cov };
@@ -355,6 +365,7 @@ impl Receiver {
             estimate: self.filter.estimate(),
             reinitialized,
         });
+        self.motion.set_lift_mode(self.last.lift);
         Ok(self.display_model())
     }
 
@@ -425,6 +436,7 @@ impl Receiver {
             overlap: self.overlap,
             pulses: self.pulses,
             t_s: self.last_pulse_t.unwrap_or(0.0),
+            lift: g.lift && !timed_out,
         }
     }
 }

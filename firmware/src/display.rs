@@ -77,6 +77,9 @@ pub fn format_metres(m: f32) -> Line16 {
     s
 }
 
+/// The top-row word of the lift prompt ([`DisplayModel::lift`]).
+pub const LIFT_WORD: &str = "LIFT 40CM";
+
 /// The status word.
 pub fn status_word(s: Status) -> &'static str {
     match s {
@@ -168,14 +171,13 @@ where
     let small = MonoTextStyle::new(&FONT_6X10, BinaryColor::On);
     let big = MonoTextStyle::new(&FONT_10X20, BinaryColor::On);
 
-    // Top row: status, overlap flag, victims heard.
-    Text::with_baseline(
-        status_word(model.status),
-        Point::zero(),
-        small,
-        Baseline::Top,
-    )
-    .draw(target)?;
+    // Top row: status (or the lift prompt), overlap flag, victims heard.
+    let word = if model.lift {
+        LIFT_WORD
+    } else {
+        status_word(model.status)
+    };
+    Text::with_baseline(word, Point::zero(), small, Baseline::Top).draw(target)?;
     if model.overlap {
         Text::with_baseline("!", Point::new(98, 0), small, Baseline::Top).draw(target)?;
     }
@@ -248,6 +250,7 @@ mod tests {
             overlap: false,
             pulses: 5,
             t_s: 5.0,
+            lift: false,
         }
     }
 

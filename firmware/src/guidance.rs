@@ -101,6 +101,16 @@ pub struct GuidanceConfig {
     pub sigma_bkg: f32,
     /// Walked distance (m) over which the flux-line direction forgets past pulses.
     pub flux_memory_m: f32,
+    /// Fine search: within this horizontal distance (m) of the mean, a depth σ above
+    /// [`lift_depth_sigma_m`](Self::lift_depth_sigma_m) asks the rescuer to stand and
+    /// lift the receiver (an absolute vertical displacement that pins the range, see
+    /// [`crate::motion::LiftTracker`]).
+    pub lift_within_m: f32,
+    /// Depth σ (m) above which the lift is asked for.
+    pub lift_depth_sigma_m: f32,
+    /// Most pulses on which the lift is asked for in one search (0: never); "probe
+    /// here" waits while it is.
+    pub lift_max_pulses: u8,
 }
 
 impl Default for GuidanceConfig {
@@ -117,6 +127,9 @@ impl Default for GuidanceConfig {
             receiver_height_m: 1.0,
             sigma_bkg: 2.59e-9,
             flux_memory_m: 3.0,
+            lift_within_m: 1.0,
+            lift_depth_sigma_m: 0.2,
+            lift_max_pulses: 6,
         }
     }
 }
@@ -158,6 +171,9 @@ pub struct GuidanceOutput {
     pub walk_m: Option<f32>,
     /// Largest horizontal standard deviation of the belief (m), once initialized.
     pub sigma_h_m: Option<f32>,
+    /// Fine search: stand and lift the receiver (≈ 0.4 m up and down within ~2 s), the
+    /// depth is too uncertain (see [`GuidanceConfig::lift_depth_sigma_m`]).
+    pub lift: bool,
 }
 
 /// The search-control state machine (IROS §III-C).
@@ -183,6 +199,8 @@ pub struct Guidance {
     bracket_side: f32,
     /// Latched probe.
     probing: bool,
+    /// Pulses on which the lift was asked for.
+    lift_pulses: u8,
 }
 
 impl Guidance {
@@ -200,6 +218,7 @@ impl Guidance {
             over_mean: 0,
             bracket_side: 1.0,
             probing: false,
+            lift_pulses: 0,
         }
     }
 
@@ -239,6 +258,7 @@ impl Guidance {
             self.probing = false;
             self.probe_count = 0;
             self.over_mean = 0;
+            self.lift_pulses = 0;
         }
         // Classical flux-line bookkeeping runs in every mode, so that a fallback from
         // the mean to the flux line starts with a sensible direction.
@@ -366,7 +386,17 @@ impl Guidance {
         } else if dist_h > 2.0 * c.bracket_m + c.probe_radius_m {
             self.over_mean = 0;
         }
-        if self.probe_count >= c.probe_confirm_pulses || self.over_mean >= c.probe_timeout_pulses {
+        // Depth (range) pinned by the scale only: ask for a lift first.
+        let sigma_z = libm::sqrtf(e.cov[(2, 2)].max(0.0));
+        out.lift = !self.probing
+            && dist_h <= c.lift_within_m
+            && sigma_z > c.lift_depth_sigma_m
+            && self.lift_pulses < c.lift_max_pulses;
+        if out.lift {
+            self.lift_pulses = self.lift_pulses.saturating_add(1);
+        } else if self.probe_count >= c.probe_confirm_pulses
+            || self.over_mean >= c.probe_timeout_pulses
+        {
             self.probing = true;
         }
         let mut target = [e.p.x, e.p.y];
@@ -627,6 +657,47 @@ mod tests {
         // Latched.
         let e = Some(est(Vec3::new(0.35, 0.0, -2.2), 0.05));
         assert_eq!(g.update(&input(h, 0.0, 0.0, e)).status, Status::Probe);
+    }
+
+    #[test]
+    fn an_uncertain_depth_over_the_mean_asks_for_a_lift_before_probing() {
+        let cfg = GuidanceConfig::default();
+        let mut g = Guidance::new(cfg);
+        let h = Vec3::new(1e-4, 0.0, 0.0);
+        let _ = g.update(&input(
+            h,
+            1.0,
+            0.0,
+            Some(est(Vec3::new(30.0, 0.0, -2.0), 2.0)),
+        ));
+        let mut wide = est(Vec3::new(0.1, 0.0, -2.2), 0.05);
+        wide.cov[(2, 2)] = 0.3 * 0.3;
+        // Far from the mean: no lift even with a wide depth.
+        let mut far = wide;
+        far.p.x = 2.0;
+        assert!(!g.update(&input(h, 1.0, 0.0, Some(far))).lift);
+        // Over it: lift (no probe meanwhile), at most `lift_max_pulses` times.
+        for _ in 0..cfg.lift_max_pulses {
+            let o = g.update(&input(h, 0.0, 0.0, Some(wide)));
+            assert!(o.lift && o.status == Status::Localized);
+        }
+        let o = g.update(&input(h, 0.0, 0.0, Some(wide)));
+        assert!(!o.lift && o.status == Status::Probe);
+        // A pinned depth probes without a lift.
+        let mut g = Guidance::new(cfg);
+        let _ = g.update(&input(
+            h,
+            1.0,
+            0.0,
+            Some(est(Vec3::new(30.0, 0.0, -2.0), 2.0)),
+        ));
+        let mut tight = wide;
+        tight.cov[(2, 2)] = 0.1 * 0.1;
+        assert!(!g.update(&input(h, 0.0, 0.0, Some(tight))).lift);
+        assert_eq!(
+            g.update(&input(h, 0.0, 0.0, Some(tight))).status,
+            Status::Probe
+        );
     }
 
     #[test]

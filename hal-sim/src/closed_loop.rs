@@ -85,6 +85,10 @@ pub struct ClosedLoopConfig {
     pub start: StartMode,
     /// Who decides where the rescuer walks.
     pub policy: Policy,
+    /// Whether the receiver may ask for a lift in the fine search (the rescuer then
+    /// stands and lifts it [`LIFT_M`] up and down over [`LIFT_S`]); without it the
+    /// receiver never asks.
+    pub lift: bool,
 }
 
 /// Where a closed-loop rescue starts.
@@ -123,6 +127,7 @@ impl ClosedLoopConfig {
             calibrated: true,
             start: StartMode::MoveIn,
             policy: Policy::Receiver,
+            lift: true,
         }
     }
 }
@@ -219,6 +224,8 @@ pub struct Outcome {
     pub depth_shown_m: Option<f64>,
     /// Where the rescuer stands at the end (receiver position), m.
     pub end_p: [f64; 3],
+    /// Lifts of the receiver the rescuer made when asked ("LIFT").
+    pub lifts: u32,
 }
 
 impl Outcome {
@@ -250,6 +257,11 @@ struct Scenario {
     heading: f64,
     step_cal: f64,
 }
+
+/// Height of the rescuer's lift of the receiver (up, then down), m.
+pub const LIFT_M: f64 = 0.4;
+/// Duration of the lift (up and down, raised-cosine profile), s.
+pub const LIFT_S: f64 = 2.0;
 
 /// Tick of the simulation (the IMU period), s.
 const DT: f64 = 0.01;
@@ -328,6 +340,8 @@ struct Person {
     /// Fine search of the directional search: the receiver is carried straight to this
     /// point (north, west) at [`CRAWL_M_S`], without steps.
     crawl_to: Option<[f64; 2]>,
+    /// Start time of a lift of the receiver under way (see [`LIFT_M`]).
+    lift_t0: Option<f64>,
 }
 
 impl Person {
@@ -380,6 +394,14 @@ impl Person {
         [self.c[0] + f * c - l * s, self.c[1] + f * s + l * c]
     }
 
+    /// Height of the lift under way at `t` (raised cosine, up and back down), m.
+    fn lift_offset(&self, t: f64) -> f64 {
+        self.lift_t0.map_or(0.0, |t0| {
+            let u = ((t - t0) / LIFT_S).clamp(0.0, 1.0);
+            0.5 * LIFT_M * (1.0 - (TAU * u).cos())
+        })
+    }
+
     fn pose(&self, t: f64) -> Pose {
         let (s, c) = self.psi.sin_cos();
         let [f, l] = HOLD_OFFSET_M;
@@ -389,7 +411,7 @@ impl Person {
         let p = V3::new(
             self.c[0] + f * c - l * s,
             self.c[1] + f * s + l * c,
-            self.hold_height + bob,
+            self.hold_height + bob + self.lift_offset(t),
         );
         let roll = self.wobble[0].at(t).v + 0.03 * self.w * (PI * self.phase).sin();
         let pitch = 0.1 + self.wobble[1].at(t).v + 0.02 * self.w * (TAU * self.phase).cos();
@@ -446,6 +468,10 @@ struct StepPlan {
     stopped_at: f64,
     /// Turned back after losing the signal (until the next arrow).
     turned_back: bool,
+    /// Last pulse seen during (or before) the last lift: a lift needs a newer one.
+    lift_pulse: u32,
+    /// Lifts made.
+    lifts: u32,
 }
 
 /// Runs one closed-loop rescue; `on_pulse` sees every pulse's row and the receiver.
@@ -466,6 +492,9 @@ pub fn run(
     app.sog = sog_config(&receiver_cfg, app.sog);
     app.guidance.receiver_height_m = app.sog.receiver_height;
     app.guidance.sigma_bkg = app.sog.sigma_bkg;
+    if !cfg.lift {
+        app.guidance.lift_max_pulses = 0;
+    }
     let mut rx = Box::new(
         Receiver::new(app).map_err(|e| anyhow::anyhow!("receiver refused its config: {e:?}"))?,
     );
@@ -494,6 +523,7 @@ pub fn run(
         ],
         hold_height: HOLD_HEIGHT_M,
         crawl_to: None,
+        lift_t0: None,
     };
     let primary = (cfg.start == StartMode::PrimarySearch).then_some(sc.heading);
     let mut ds = Directional::default();
@@ -688,6 +718,7 @@ pub fn run(
         pulses_from_start: pulses_at_probe,
         depth_shown_m,
         end_p: end.into(),
+        lifts: plan.lifts,
     })
 }
 
@@ -927,6 +958,28 @@ fn act(
     t: f64,
 ) {
     let d = &view.display;
+    // A lift under way: stand until it is over.
+    if let Some(t0) = person.lift_t0 {
+        person.w_target = 0.0;
+        plan.lift_pulse = plan.lift_pulse.max(d.pulses);
+        if t < t0 + LIFT_S {
+            return;
+        }
+        person.lift_t0 = None;
+        plan.stopped_at = t;
+    }
+    // "LIFT": stand, then lift the receiver up and down (once per new prompt).
+    if d.lift {
+        person.w_target = 0.0;
+        plan.end_phase = None;
+        if d.pulses > plan.lift_pulse && person.w < 1e-3 && person.crawl_to.is_none() {
+            person.lift_t0 = Some(t);
+            plan.lift_pulse = d.pulses;
+            plan.lifts += 1;
+        }
+        plan.stopped_at = t;
+        return;
+    }
     let Some(arrow) = d.arrow_deg else {
         // Nothing to follow: stand (before the first signal) or keep going; when the
         // signal is lost, turn back once (toward where it was last heard).

@@ -240,6 +240,7 @@ fn displacement(b: &mut Bytes) -> Displacement {
         translation,
         rotation,
         cov,
+        ..Displacement::zero()
     }
 }
 

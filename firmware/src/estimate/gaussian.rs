@@ -2,8 +2,8 @@
 //! displacement, update, and composition (IROS 2006 Algorithm 1, eq. 10–15).
 
 use super::model::{
-    I_RPY, MotionMat, MotionVec, NU, NX, StateMat, StateVec, compose, compose_rot, measure,
-    measure_rot, rpy_of,
+    I_RPY, I_S, MotionMat, MotionVec, NU, NX, StateMat, StateVec, compose_abs, compose_rot,
+    measure, measure_rot, rpy_of,
 };
 use super::packed;
 use super::rot::Rot;
@@ -138,6 +138,11 @@ pub(crate) struct StepInput {
     pub z: Vec3,
     /// Measurement noise variance per axis (ICRA eq. 10), in (µA/m)².
     pub r_var: f32,
+    /// Absolute (unscaled) translation in `R_{k-1}` (m), added after the scale.
+    pub a: Vec3,
+    /// Its covariance (m²), or `None` when the pulse has no absolute part (the common
+    /// case: then the step costs nothing extra).
+    pub qa: Option<Mat3>,
 }
 
 impl StepInput {
@@ -149,7 +154,30 @@ impl StepInput {
             rb: Rot::new(&Vec3::new(u[3], u[4], u[5])),
             z: *z,
             r_var,
+            a: Vec3::zeros(),
+            qa: None,
         }
+    }
+
+    /// The same with an absolute (unscaled) translation `a` in `R_{k-1}` (m) of
+    /// covariance `qa` (m²).
+    pub fn with_absolute(mut self, a: &Vec3, qa: &Mat3) -> Self {
+        self.a = *a;
+        self.qa = Some(*qa);
+        self
+    }
+
+    /// The displacement covariance seen by the component `x`. `∂p'/∂a = ∂p'/∂Δp / s`,
+    /// so the absolute part's noise enters exactly (to first order) as `Q_a / s²` on the
+    /// dead-reckoned translation: one 3×3 add per component, no extra Jacobian.
+    fn q_for(&self, x: &StateVec) -> MotionMat {
+        let mut q = self.q;
+        if let Some(qa) = &self.qa {
+            let s2 = (x[I_S] * x[I_S]).max(1e-2);
+            let mut t = q.fixed_view_mut::<3, 3>(0, 0);
+            t += qa / s2;
+        }
+        q
     }
 }
 
@@ -214,7 +242,8 @@ fn step_component_joseph(
     p: &StateMat,
     attitude: Option<(&Vec3, &Mat3)>,
 ) -> Result<(StateVec, StateMat, Innovation), ComponentFailure> {
-    let (x1, p1, inn) = step_gaussian_joseph(x, p, &inp.u, &inp.q, &inp.z, inp.r_var)?;
+    let q = inp.q_for(x);
+    let (x1, p1, inn) = step_gaussian_joseph(x, p, &inp.u, &inp.a, &q, &inp.z, inp.r_var)?;
     match attitude {
         Some((z, r)) => attitude_update_joseph(&x1, &p1, z, r).map(|(x2, p2)| (x2, p2, inn)),
         None => Ok((x1, p1, inn)),
@@ -300,9 +329,16 @@ pub(crate) fn step_gaussian(
     x: &StateVec,
     p: &StateMat,
 ) -> Result<(StateVec, StateMat, Innovation), ComponentFailure> {
-    let (u, q) = (&inp.u, &inp.q);
+    let u = &inp.u;
+    let q_abs;
+    let q = if inp.qa.is_some() {
+        q_abs = inp.q_for(x);
+        &q_abs
+    } else {
+        &inp.q
+    };
     // Linearization point of the measurement: the prior augmented mean (eq. 14).
-    let (prior_x, prior_j) = compose_rot(x, u, &Rot::new(&rpy_of(x)), &inp.rb);
+    let (prior_x, prior_j) = compose_rot(x, u, &inp.a, &Rot::new(&rpy_of(x)), &inp.rb);
     let meas =
         measure_rot(&prior_x, &Rot::new(&rpy_of(&prior_x))).map_err(|_| ComponentFailure::Model)?;
     // H* = J [F_x F_u] (eq. 14), through the structure of F.
@@ -327,7 +363,7 @@ pub(crate) fn step_gaussian(
     // Composition at the updated augmented mean (eq. 15).
     let ra = Rot::new(&rpy_of(&x_post));
     let rb = Rot::new(&Vec3::new(u_post[3], u_post[4], u_post[5]));
-    let (x_new, post_j) = compose_rot(&x_post, &u_post, &ra, &rb);
+    let (x_new, post_j) = compose_rot(&x_post, &u_post, &inp.a, &ra, &rb);
     // F P* Fᵀ = F [F_x P, F_u Q]ᵀ (P*, hence the product, symmetric).
     let fp = post_j.apply_fx(p).transpose();
     let fq = post_j.apply_fu(q).transpose();
@@ -340,16 +376,18 @@ pub(crate) fn step_gaussian(
 
 /// [`step_gaussian`] in the Joseph form, with dense Jacobians (the fallback, and the
 /// reference the short form is tested against):
-/// `P_k = F (I−KH*) P* (I−KH*)ᵀ Fᵀ + F K R Kᵀ Fᵀ`, a sum of PSD terms.
+/// `P_k = F (I−KH*) P* (I−KH*)ᵀ Fᵀ + F K R Kᵀ Fᵀ`, a sum of PSD terms. `a` is the
+/// absolute translation; `q` already carries its noise (see [`StepInput`]).
 pub(crate) fn step_gaussian_joseph(
     x: &StateVec,
     p: &StateMat,
     u: &MotionVec,
+    a: &Vec3,
     q: &MotionMat,
     z: &Vec3,
     r_var: f32,
 ) -> Result<(StateVec, StateMat, Innovation), ComponentFailure> {
-    let prior = compose(x, u);
+    let prior = compose_abs(x, u, a);
     let meas = measure(&prior.x).map_err(|_| ComponentFailure::Model)?;
     let ha: SMatrix<f32, 3, NX> = meas.jac * prior.fx;
     let hb: SMatrix<f32, 3, NU> = meas.jac * prior.fu;
@@ -370,7 +408,7 @@ pub(crate) fn step_gaussian_joseph(
     let x_post = x + ka * nu;
     let u_post = u + kb * nu;
 
-    let post = compose(&x_post, &u_post);
+    let post = compose_abs(&x_post, &u_post, a);
     let b: SMatrix<f32, NX, 3> = post.fx * ka + post.fu * kb;
     let a1: StateMat = post.fx - b * ha;
     let a2: SMatrix<f32, NX, NU> = post.fu - b * hb;
@@ -482,7 +520,8 @@ mod tests {
 
     type X64 = V<f64, 10>;
     type U64 = V<f64, 6>;
-    type A64 = V<f64, 16>;
+    /// Augmented `[x (10); u (6); absolute translation (3)]`.
+    type A64 = V<f64, 19>;
 
     fn rot64(r: f64, p: f64, y: f64) -> M<f64, 3, 3> {
         let (sr, cr) = r.sin_cos();
@@ -514,7 +553,8 @@ mod tests {
         let dr = rot64(a[13], a[14], a[15]);
         let psi = rpy64(&(r * dr));
         let dp = V::<f64, 3>::new(a[10], a[11], a[12]);
-        let p = V::<f64, 3>::new(a[3], a[4], a[5]) - r * dp * a[9];
+        let ab = V::<f64, 3>::new(a[16], a[17], a[18]);
+        let p = V::<f64, 3>::new(a[3], a[4], a[5]) - r * (dp * a[9] + ab);
         X64::from_column_slice(&[
             psi[0], psi[1], psi[2], p[0], p[1], p[2], a[6], a[7], a[8], a[9],
         ])
@@ -529,8 +569,8 @@ mod tests {
         rot64(x[0], x[1], x[2]).transpose() * h * (K_H as f64)
     }
 
-    fn jac_f(a: &A64) -> M<f64, 10, 16> {
-        M::<f64, 10, 16>::from_fn(|i, k| {
+    fn jac_f(a: &A64) -> M<f64, 10, 19> {
+        M::<f64, 10, 19>::from_fn(|i, k| {
             let e = 1e-6;
             let (mut ap, mut am) = (*a, *a);
             ap[k] += e;
@@ -546,9 +586,9 @@ mod tests {
         })
     }
 
-    fn jac_h(a: &A64) -> M<f64, 3, 16> {
-        let mut j = M::<f64, 3, 16>::zeros();
-        for k in 0..16 {
+    fn jac_h(a: &A64) -> M<f64, 3, 19> {
+        let mut j = M::<f64, 3, 19>::zeros();
+        for k in 0..19 {
             let e = 1e-6 * (1.0 + a[k].abs());
             let (mut ap, mut am) = (*a, *a);
             ap[k] += e;
@@ -564,15 +604,18 @@ mod tests {
         p: &M<f64, 10, 10>,
         u: &U64,
         q: &M<f64, 6, 6>,
+        (ab, qa): (&V<f64, 3>, &M<f64, 3, 3>),
         z: &V<f64, 3>,
         r_var: f64,
     ) -> (X64, M<f64, 10, 10>) {
         let mut a = A64::zeros();
         a.fixed_rows_mut::<10>(0).copy_from(x);
         a.fixed_rows_mut::<6>(10).copy_from(u);
-        let mut ps = M::<f64, 16, 16>::zeros();
+        a.fixed_rows_mut::<3>(16).copy_from(ab);
+        let mut ps = M::<f64, 19, 19>::zeros();
         ps.fixed_view_mut::<10, 10>(0, 0).copy_from(p);
         ps.fixed_view_mut::<6, 6>(10, 10).copy_from(q);
+        ps.fixed_view_mut::<3, 3>(16, 16).copy_from(qa);
         let h = jac_h(&a);
         let rr = M::<f64, 3, 3>::identity() * r_var;
         let s = h * ps * h.transpose() + rr;
@@ -586,7 +629,7 @@ mod tests {
         };
         let k = ps * h.transpose() * s_inv;
         let a_post = a + k * nu;
-        let ikh = M::<f64, 16, 16>::identity() - k * h;
+        let ikh = M::<f64, 19, 19>::identity() - k * h;
         let ps_post = ikh * ps * ikh.transpose() + k * rr * k.transpose();
         let f = jac_f(&a_post);
         (compose64(&a_post), f * ps_post * f.transpose())
@@ -618,23 +661,38 @@ mod tests {
         let mut worst_x = 0.0f64;
         let mut worst_p = 0.0f64;
         let mut worst_short = 0.0f64;
-        for _ in 0..200 {
+        for n in 0..200 {
             let x = random_state(&mut rng);
             let range = p_of3(&x).norm();
             let p = random_state_cov(&mut rng, range);
             let u = random_motion(&mut rng);
             let q = random_motion_cov(&mut rng);
+            // Half the cases with an absolute (unscaled) translation, e.g. a lift.
+            let (ab, qa) = if n % 2 == 0 {
+                (Vec3::zeros(), Mat3::zeros())
+            } else {
+                let ab = Vec3::new(
+                    rng.random_range(-0.1..0.1),
+                    rng.random_range(-0.1..0.1),
+                    rng.random_range(-0.5..0.5),
+                );
+                (ab, random_cov::<3>(&mut rng, &[0.02, 0.02, 0.03]))
+            };
             // A pulse near the prediction, with a random sign, 3 % noise.
-            let prior = compose(&x, &u);
+            let prior = compose_abs(&x, &u, &ab);
             let h = measure(&prior.x).unwrap().h;
             let sign = if rng.random::<bool>() { 1.0 } else { -1.0 };
             let noise = Vec3::from_fn(|_, _| rng.random_range(-0.05f32..0.05)) * h.norm();
             let z = (h + noise) * sign;
             let r_var = (0.03 * h.norm()).powi(2) + 1e-5;
-            let inp = StepInput::new(&u, &q, &z, r_var);
+            let mut inp = StepInput::new(&u, &q, &z, r_var);
+            if n % 2 == 1 {
+                inp = inp.with_absolute(&ab, &qa);
+            }
             let (x32, p32, _) = step_gaussian(&inp, &x, &p).unwrap();
             // The short form agrees with the Joseph form to f32 round-off.
-            let (xj, pj, _) = step_gaussian_joseph(&x, &p, &u, &q, &z, r_var).unwrap();
+            let qj = inp.q_for(&x);
+            let (xj, pj, _) = step_gaussian_joseph(&x, &p, &u, &ab, &qj, &z, r_var).unwrap();
             for i in 0..10 {
                 let sd = (pj[(i, i)] as f64).sqrt().max(1e-6);
                 worst_short = worst_short.max(((x32[i] - xj[i]) as f64).abs() / sd);
@@ -648,6 +706,7 @@ mod tests {
                 &p.cast(),
                 &u.cast(),
                 &q.cast(),
+                (&ab.cast(), &qa.cast()),
                 &z.cast(),
                 r_var as f64,
             );

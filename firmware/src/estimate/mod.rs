@@ -61,6 +61,13 @@ pub struct Displacement {
     /// Covariance `Q_k` of `[translation; rotation]` (m², rad²): the per-step noise on
     /// top of the scale error. Must be symmetric with a non-negative diagonal.
     pub cov: Mat6,
+    /// Absolute part of the translation, in `R_{k-1}` axes (m): measured, not
+    /// dead-reckoned (e.g. the accelerometer-integrated excursion of a lift of the
+    /// device), so the filter adds it *after* the scale state multiplies `translation`:
+    /// `s·translation + absolute`. It breaks the range/scale symmetry of the field.
+    pub absolute: Vec3,
+    /// Covariance of `absolute` (m²), independent of `cov`; zero when there is none.
+    pub absolute_cov: Mat3,
 }
 
 impl Displacement {
@@ -70,6 +77,8 @@ impl Displacement {
             translation: Vec3::zeros(),
             rotation: Rpy::zeros(),
             cov: Mat6::zeros(),
+            absolute: Vec3::zeros(),
+            absolute_cov: Mat3::zeros(),
         }
     }
 
@@ -85,7 +94,14 @@ impl Displacement {
             translation,
             rotation,
             cov,
+            absolute: Vec3::zeros(),
+            absolute_cov: Mat3::zeros(),
         }
+    }
+
+    /// Whether the displacement has an absolute part (non-zero mean or covariance).
+    pub fn has_absolute(&self) -> bool {
+        self.absolute != Vec3::zeros() || self.absolute_cov != Mat3::zeros()
     }
 }
 

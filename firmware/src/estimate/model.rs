@@ -5,7 +5,8 @@
 //! rad), transmitter position in `G_k` (m), transmitter moment in `G_k` (mA·m², see
 //! [`MOMENT_SCALE`]) and the walk-long scale factor `s` of the dead-reckoned translation.
 //! Displacement `u = [Δp; ΔΨ]` (6): translation in `R_{k-1}` as dead-reckoned (m) and
-//! rotation `R_{k-1} → R_k` (rad).
+//! rotation `R_{k-1} → R_k` (rad). An absolute (unscaled) translation `a` in `R_{k-1}` (m),
+//! measured rather than dead-reckoned, is added after the scale: `p' = p − R(Ψ)(s·Δp + a)`.
 
 use super::rot::{self, Rot};
 use crate::dipole::{DipoleError, field_with_jacobians};
@@ -70,15 +71,18 @@ pub(crate) struct Composition {
 ///
 /// ```text
 /// Ψ' = Ψ ⊕ ΔΨ          ∂Ψ'/∂Ψ = ja,  ∂Ψ'/∂ΔΨ = jb
-/// p' = p − R(Ψ)·s·Δp   ∂p'/∂Ψ = g,   ∂p'/∂p = I,  ∂p'/∂s = gs,  ∂p'/∂Δp = rs
+/// p' = p − R(Ψ)·(s·Δp + a)   ∂p'/∂Ψ = g, ∂p'/∂p = I, ∂p'/∂s = gs, ∂p'/∂Δp = rs
 /// ```
+///
+/// (`∂p'/∂a = −R = rs / s`: the absolute part's noise is carried as `Q_a / s²` on `Δp`,
+/// see [`super::gaussian::StepInput`].)
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct CompositionJac {
     /// `∂Ψ'/∂Ψ`.
     pub ja: Mat3,
     /// `∂Ψ'/∂ΔΨ`.
     pub jb: Mat3,
-    /// `∂p'/∂Ψ = −s·[∂R/∂ψ Δp, ∂R/∂θ Δp, ∂R/∂φ Δp]`.
+    /// `∂p'/∂Ψ = −[∂R/∂ψ d, ∂R/∂θ d, ∂R/∂φ d]` with `d = s·Δp + a`.
     pub g: Mat3,
     /// `∂p'/∂s = −R Δp`.
     pub gs: Vec3,
@@ -142,11 +146,13 @@ impl CompositionJac {
 }
 
 /// Composition (IROS eq. 5–9 with the scale state): `Ψ' = Ψ ⊕ ΔΨ`,
-/// `p' = p − R(Ψ)·s·Δp`, `m' = m`, `s' = s`, from the rotations `ra = R(Ψ)` and
-/// `rb = R(ΔΨ)` (with their partials) already evaluated at `x` and `u`.
+/// `p' = p − R(Ψ)·(s·Δp + a)`, `m' = m`, `s' = s`, from the rotations `ra = R(Ψ)` and
+/// `rb = R(ΔΨ)` (with their partials) already evaluated at `x` and `u`; `a` is the
+/// absolute (unscaled) translation in `R_{k-1}` (m).
 pub(crate) fn compose_rot(
     x: &StateVec,
     u: &MotionVec,
+    a: &Vec3,
     ra: &Rot,
     rb: &Rot,
 ) -> (StateVec, CompositionJac) {
@@ -155,14 +161,15 @@ pub(crate) fn compose_rot(
     let dp = Vec3::new(u[0], u[1], u[2]);
     let (psi2, _, ja, jb) = rot::compose_rpy(ra, rb);
     let rdp = ra.r * dp;
-    let p2 = p - rdp * s;
+    let d = dp * s + a;
+    let p2 = p - ra.r * d;
 
     let mut out = *x;
     out.fixed_rows_mut::<3>(I_RPY).copy_from(&psi2);
     out.fixed_rows_mut::<3>(I_P).copy_from(&p2);
     let mut g = Mat3::zeros();
     for (i, part) in ra.d.iter().enumerate() {
-        g.set_column(i, &(part * dp * (-s)));
+        g.set_column(i, &(part * (-d)));
     }
     let jac = CompositionJac {
         ja,
@@ -175,10 +182,10 @@ pub(crate) fn compose_rot(
 }
 
 /// [`compose_rot`] with the rotations evaluated here and the dense Jacobians.
-pub(crate) fn compose(x: &StateVec, u: &MotionVec) -> Composition {
+pub(crate) fn compose_abs(x: &StateVec, u: &MotionVec, a: &Vec3) -> Composition {
     let ra = Rot::new(&rpy_of(x));
     let rb = Rot::new(&Rpy::new(u[3], u[4], u[5]));
-    let (x2, jac) = compose_rot(x, u, &ra, &rb);
+    let (x2, jac) = compose_rot(x, u, a, &ra, &rb);
     Composition {
         x: x2,
         fx: jac.fx(),
@@ -261,16 +268,27 @@ pub(crate) mod tests {
     #[test]
     fn composition_jacobians_match_central_differences() {
         let mut rng = SmallRng::seed_from_u64(21);
-        for _ in 0..300 {
+        for n in 0..300 {
             let x = random_state(&mut rng);
             let u = random_motion(&mut rng);
-            let c = compose(&x, &u);
+            // Half the cases with an absolute (unscaled) translation.
+            let a = if n % 2 == 0 {
+                Vec3::zeros()
+            } else {
+                Vec3::new(
+                    rng.random_range(-0.2..0.2),
+                    rng.random_range(-0.2..0.2),
+                    rng.random_range(-0.5..0.5),
+                )
+            };
+            let c = compose_abs(&x, &u, &a);
             let h = 1e-3;
             for k in 0..NX {
                 let (mut xp, mut xm) = (x, x);
                 xp[k] += h;
                 xm[k] -= h;
-                let fd = angle_diff(&compose(&xp, &u).x, &compose(&xm, &u).x) / (2.0 * h);
+                let fd = angle_diff(&compose_abs(&xp, &u, &a).x, &compose_abs(&xm, &u, &a).x)
+                    / (2.0 * h);
                 let err = (fd - c.fx.column(k)).abs().max();
                 assert!(
                     err < 5e-3 * (1.0 + c.fx.column(k).abs().max()),
@@ -281,12 +299,24 @@ pub(crate) mod tests {
                 let (mut up, mut um) = (u, u);
                 up[k] += h;
                 um[k] -= h;
-                let fd = angle_diff(&compose(&x, &up).x, &compose(&x, &um).x) / (2.0 * h);
+                let fd = angle_diff(&compose_abs(&x, &up, &a).x, &compose_abs(&x, &um, &a).x)
+                    / (2.0 * h);
                 let err = (fd - c.fu.column(k)).abs().max();
                 assert!(
                     err < 5e-3 * (1.0 + c.fu.column(k).abs().max()),
                     "∂f/∂u{k}: {err}"
                 );
+            }
+            // ∂p'/∂a = −R(Ψ) = ∂p'/∂Δp / s: the absolute part is not scaled.
+            let fu_t: Mat3 = c.fu.fixed_view::<3, 3>(I_P, 0).into_owned() / x[I_S];
+            for k in 0..3 {
+                let (mut ap, mut am) = (a, a);
+                ap[k] += h;
+                am[k] -= h;
+                let fd = (compose_abs(&x, &u, &ap).x - compose_abs(&x, &u, &am).x) / (2.0 * h);
+                let col = fd.fixed_rows::<3>(I_P).into_owned();
+                assert!((col - fu_t.column(k)).abs().max() < 5e-3, "∂f/∂a{k}");
+                assert!(fd[I_S].abs() < 1e-6);
             }
         }
     }

@@ -25,8 +25,8 @@ use super::{
     Attitude, Displacement, EstimateError, Estimator, Mode, Pulse, SogConfig, StepOutcome,
     StepReport, VictimEstimate, check_covariance,
 };
-use crate::Vec3;
 use crate::frame::Rpy;
+use crate::{Mat3, Vec3};
 use heapless::Vec;
 
 /// Capacity of the default filter: 240 components × 264 bytes = 63 360 bytes, which
@@ -178,12 +178,14 @@ impl<const N: usize> SogFilter<N> {
         // Validate every input before touching the state.
         self.check_pulse(pulse)?;
         if !(motion.translation.iter().all(|v| v.is_finite())
+            && motion.absolute.iter().all(|v| v.is_finite())
             && motion.rotation.iter().all(|v| v.is_finite())
             && attitude.rpy.iter().all(|v| v.is_finite()))
         {
             return Err(EstimateError::NonFinite);
         }
         check_covariance(&motion.cov)?;
+        check_covariance(&motion.absolute_cov)?;
         check_covariance(&attitude.cov)?;
         check_physical_range(motion, attitude)?;
         self.last_t = Some(pulse.t);
@@ -214,7 +216,16 @@ impl<const N: usize> SogFilter<N> {
         let fuse_attitude = !self.exact_motion();
         let att_r = (attitude.cov + attitude.cov.transpose()) * 0.5;
 
-        let inp = StepInput::new(&u, &q, &z, r_var);
+        let mut inp = StepInput::new(&u, &q, &z, r_var);
+        if motion.has_absolute() {
+            // With a known trajectory the absolute part is exact too.
+            let qa = if self.exact_motion() {
+                Mat3::zeros()
+            } else {
+                (motion.absolute_cov + motion.absolute_cov.transpose()) * 0.5
+            };
+            inp = inp.with_absolute(&motion.absolute, &qa);
+        }
         mark(Phase::Setup);
         // Scale-prior divergence (see `SogConfig::scale_divergence_d2`): the posterior
         // mean of a consistent Gaussian has ŝ − 1 ~ N(0, σ_s² − P_ss).
@@ -365,6 +376,8 @@ const MAX_VARIANCE: f32 = 1.0e6;
 /// translations and angles overflowed the composition to ±∞ and broke covariances).
 fn check_physical_range(motion: &Displacement, attitude: &Attitude) -> Result<(), EstimateError> {
     let in_range = motion.translation.norm() <= MAX_TRANSLATION_M
+        && motion.absolute.norm() <= MAX_TRANSLATION_M
+        && (0..3).all(|i| motion.absolute_cov[(i, i)] <= MAX_VARIANCE)
         && motion.rotation.amax() <= MAX_ANGLE_RAD
         && attitude.rpy.amax() <= MAX_ANGLE_RAD
         && (0..6).all(|i| motion.cov[(i, i)] <= MAX_VARIANCE)

@@ -282,6 +282,7 @@ pub(crate) fn run<E: Estimator>(setup: &Setup, estimator: &mut E, config: &SogCo
                 translation: dp_true,
                 rotation: drot_true,
                 cov: Mat6::zeros(),
+                ..Displacement::zero()
             }
         } else {
             Displacement::with_sigmas(

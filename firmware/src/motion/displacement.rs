@@ -39,6 +39,12 @@ pub struct Displacement {
     pub steps: u16,
     /// Distance walked in the interval along the path, m.
     pub distance_m: f32,
+    /// Absolute (not dead-reckoned, hence unscaled) part of the translation in `R_{k-1}`
+    /// axes, m: the accelerometer-integrated vertical excursion of a lift
+    /// ([`super::LiftTracker`]); zero when there is none.
+    pub absolute: Vec3,
+    /// Covariance of `absolute`, m².
+    pub absolute_cov: Mat3,
 }
 
 impl Displacement {
@@ -55,6 +61,8 @@ impl Displacement {
             cov,
             steps: 0,
             distance_m: 0.0,
+            absolute: Vec3::zeros(),
+            absolute_cov: Mat3::zeros(),
         }
     }
 }
@@ -118,6 +126,11 @@ pub struct Interval {
 }
 
 impl Interval {
+    /// The attitude `R_{W R_{k-1}}` at the start of the interval.
+    pub fn start_rotation(&self) -> &Mat3 {
+        &self.r0
+    }
+
     /// An interval starting at time `t0` with the attitude `r0 = R_{W R_{k-1}}`.
     pub fn new(t0: f32, r0: Mat3) -> Self {
         let yaw0 = rpy_from_rotation(&r0).z;
@@ -243,6 +256,8 @@ impl Interval {
             cov: 0.5 * (q + q.transpose()),
             steps: self.steps,
             distance_m: self.distance,
+            absolute: Vec3::zeros(),
+            absolute_cov: Mat3::zeros(),
         }
     }
 }

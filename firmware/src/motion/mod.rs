@@ -18,11 +18,13 @@
 
 pub mod attitude;
 pub mod displacement;
+pub mod lift;
 pub mod pdr;
 pub mod steps;
 
 pub use attitude::{AttitudeConfig, AttitudeFilter, MagCalibration, static_attitude};
 pub use displacement::{Displacement, Interval, Mat6, PdrNoise};
+pub use lift::{LiftConfig, LiftTracker};
 pub use pdr::PdrPose;
 pub use steps::{
     CalibrationResult, StepCalibration, StepDetector, StepDetectorConfig, StepEvent,
@@ -32,6 +34,9 @@ pub use steps::{
 use crate::frame::{Rpy, wrap_pi};
 use crate::{Mat3, Vec3};
 use attitude::GRAVITY;
+
+/// In lift mode, a step this recent (s) means the walker is still finishing the walk.
+const LIFT_STEP_GUARD_S: f32 = 0.8;
 
 /// Why an IMU sample or a request was refused (the state is then unchanged).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -151,6 +156,10 @@ pub struct Motion {
     weinberg_sum: f32,
     distance_m: f32,
     calibration: Option<StepCalibration>,
+    lift: LiftTracker,
+    lift_mode: bool,
+    /// Lift mode held after it was turned off until the manoeuvre under way ends.
+    lift_hold: bool,
 }
 
 impl Motion {
@@ -164,6 +173,9 @@ impl Motion {
             weinberg_sum: 0.0,
             distance_m: 0.0,
             calibration: None,
+            lift: LiftTracker::new(LiftConfig::default()),
+            lift_mode: false,
+            lift_hold: false,
         }
     }
 
@@ -261,6 +273,26 @@ impl Motion {
         run.yaw_mean.add(yaw);
         // Vertical specific force in W minus g: the step's vertical acceleration.
         let a_vertical = (r * acc).z - GRAVITY;
+        // Standing: no step under way. In lift mode (the walker was asked to stand and
+        // lift), a step within the last `LIFT_STEP_GUARD_S` still means walking (the
+        // walk finishing after the prompt); otherwise the lift's vertical acceleration
+        // must not be taken for steps.
+        let pending = self.det.pending_peak().is_some();
+        let since_step = self.det.last_step().map_or(f32::INFINITY, |ls| t - ls);
+        // A lift under way when the prompt goes off is finished in lift mode.
+        if !self.lift_mode && self.lift_hold && !self.lift.is_moving() {
+            self.lift_hold = false;
+        }
+        let lift_mode = self.lift_mode || self.lift_hold;
+        let standing = if lift_mode {
+            !pending && since_step > LIFT_STEP_GUARD_S
+        } else {
+            !pending && since_step > self.cfg.steps.max_interval_s
+        };
+        self.lift.update(dt, a_vertical, standing);
+        if lift_mode && standing {
+            return;
+        }
         let Some(ev) = self.det.update(t, a_vertical) else {
             return;
         };
@@ -344,7 +376,15 @@ impl Motion {
         // Residual gyro-bias uncertainty drifts the relative rotation over the interval.
         let pb = run.att.error_cov();
         let bias_var = pb[(3, 3)].max(pb[(4, 4)]).max(pb[(5, 5)]);
-        let d = closing.close(t, &rk, &noise, bias_var);
+        let mut d = closing.close(t, &rk, &noise, bias_var);
+        if let Some((dz, var)) = self.lift.take() {
+            // The world-vertical excursion in R_{k-1} axes: R_{k-1}ᵀ e_z = row 2 of R_{k-1}.
+            let r0 = closing.start_rotation();
+            let e = Vec3::new(r0[(2, 0)], r0[(2, 1)], r0[(2, 2)]);
+            d.absolute = e * dz;
+            // Rank one, plus 1 mm² so that the correlations stay within [-1, 1] in f32.
+            d.absolute_cov = e * e.transpose() * var.max(0.0) + Mat3::identity() * 1e-6;
+        }
         let mut next = Interval::new(t, rk);
         if partial > 0.0 {
             next.add_stride(t, -partial, yaw_now, sp * sp, &noise);
@@ -419,7 +459,22 @@ impl Motion {
         run.att.inflate_for_gap(t - run.t_last);
         run.t_last = t;
         self.det.reset();
+        self.lift.interrupt();
         Ok(())
+    }
+
+    /// Lift mode (the display asks the walker to stand and lift the device): step
+    /// detection is suspended so that the lift's vertical acceleration is not taken for
+    /// steps, and the lift is tracked as standing.
+    /// A lift under way when it is turned off is still finished in lift mode.
+    pub fn set_lift_mode(&mut self, on: bool) {
+        self.lift_mode = on;
+        self.lift_hold |= on;
+    }
+
+    /// Whether lift mode is on (see [`set_lift_mode`](Self::set_lift_mode)).
+    pub fn lift_mode(&self) -> bool {
+        self.lift_mode
     }
 
     /// Button press at the start of a calibration walk.
@@ -535,6 +590,45 @@ mod tests {
         assert!((rpy - Rpy::new(0.0, 0.05, 0.3)).norm() < 1e-3);
         assert!(cov[(2, 2)] > 0.0);
         assert!((m.scale_sigma() - 0.02).abs() < 1e-7);
+    }
+
+    #[test]
+    fn a_lift_in_lift_mode_gives_the_absolute_vertical_part() {
+        // Standing, device pitched 0.05 rad, yaw 0.3: a 0.4 m raised-cosine lift over
+        // 2 s from t = 2 s; pulses before, at the top and after.
+        let mut m = running();
+        m.set_lift_mode(true);
+        let r = rotation_from_rpy(&Rpy::new(0.0, 0.05, 0.3));
+        let mag = r.transpose() * earth();
+        let w = 2.0 * core::f32::consts::PI / 2.0;
+        let mut got = [Displacement::still(0.0, 0.0); 3];
+        let pulses = [1.5f32, 3.0, 5.0];
+        let mut next = 0;
+        for k in 50..600 {
+            let t = k as f32 * 0.01;
+            let a = if (2.0..=4.0).contains(&t) {
+                0.2 * w * w * libm::cosf(w * (t - 2.0))
+            } else {
+                0.0
+            };
+            let acc = r.transpose() * Vec3::new(0.0, 0.0, a + GRAVITY);
+            m.on_imu(t, &acc, &Vec3::zeros(), &mag).unwrap();
+            if next < 3 && t >= pulses[next] - 1e-4 {
+                got[next] = m.take_displacement(t);
+                next += 1;
+            }
+        }
+        assert_eq!(got[0].absolute, Vec3::zeros());
+        assert_eq!(m.total_steps(), 0, "the lift is not taken for steps");
+        // In R_{k-1} axes; back in W it is vertical.
+        let up = r * got[1].absolute;
+        assert!((up - Vec3::new(0.0, 0.0, 0.4)).norm() < 0.02, "{up:?}");
+        let down = r * got[2].absolute;
+        assert!((down + Vec3::new(0.0, 0.0, 0.4)).norm() < 0.02, "{down:?}");
+        let var_w = r * got[1].absolute_cov * r.transpose();
+        assert!(var_w[(2, 2)] > 0.0 && var_w[(2, 2)].sqrt() < 0.05);
+        assert!(var_w[(0, 0)] < 1e-5);
+        assert!(got.iter().all(|d| d.translation.norm() < 1e-6));
     }
 
     #[test]
