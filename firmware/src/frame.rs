@@ -4,8 +4,9 @@
 //! geographic x north, y west, z up; orientation as roll ψ, pitch θ, yaw φ with
 //! `R_WR = Rot(z, φ) · Rot(y, θ) · Rot(x, ψ)`. A vector in R maps to W as `v_W = R_WR v_R`.
 //!
-//! Trigonometry goes through `libm` explicitly so the host tests and the Cortex-M4F run
-//! the very same functions.
+//! Trigonometry goes through [`sin_cos`] (f32, ≤ 2 ulp) and `libm` explicitly, never the
+//! `f32` methods (std on the host), so the host tests and the Cortex-M4F run the very same
+//! functions.
 
 use crate::{Mat3, Vec3};
 
@@ -99,8 +100,38 @@ fn rpy_differential(r: &Mat3, dr: &Mat3) -> Vec3 {
     )
 }
 
-fn sin_cos(a: f32) -> (f32, f32) {
-    (libm::sinf(a), libm::cosf(a))
+// `libm::sinf`/`cosf` evaluate their kernels in f64, which the Cortex-M4F emulates in
+// software (≈ 1 200 instructions per call): rotations use this f32 version instead.
+/// `π/2` split in three parts for the Cody–Waite reduction; `HI` and `MID` have few
+/// enough significant bits that `k·HI` and `k·MID` are exact for `|k| < 2¹²`.
+const PIO2_HI: f32 = 1.570_312_5;
+const PIO2_MID: f32 = 4.838_705e-4;
+const PIO2_LO: f32 = -4.371_139e-8;
+/// Beyond this magnitude the reduction above loses accuracy; `libm` takes over (angles
+/// are wrapped to (−π, π] here, so this never happens in practice).
+const FAST_LIMIT: f32 = 4096.0;
+
+/// `(sin a, cos a)` in `f32` (≤ 2 ulp for |a| < 4096, `libm` beyond): reduction to `[−π/4, π/4]` by a multiple of `π/2`, then
+/// the minimax polynomials of musl's `__sindf`/`__cosdf` evaluated in `f32`.
+pub fn sin_cos(a: f32) -> (f32, f32) {
+    // NaN goes to `libm`, which propagates it.
+    if a.is_nan() || a.abs() >= FAST_LIMIT {
+        return (libm::sinf(a), libm::cosf(a));
+    }
+    let k = (a * core::f32::consts::FRAC_2_PI + 0.5f32.copysign(a)) as i32;
+    let kf = k as f32;
+    let r = ((a - kf * PIO2_HI) - kf * PIO2_MID) - kf * PIO2_LO;
+    let r2 = r * r;
+    let s = r + r
+        * r2
+        * (-0.166_666_67 + r2 * (8.333_329e-3 + r2 * (-1.983_933_5e-4 + r2 * 2.718_311_4e-6)));
+    let c = 1.0 + r2 * (-0.5 + r2 * (4.166_662_3e-2 + r2 * (-1.388_676_4e-3 + r2 * 2.439_045e-5)));
+    match k & 3 {
+        0 => (s, c),
+        1 => (c, -s),
+        2 => (-s, -c),
+        _ => (-c, s),
+    }
 }
 
 fn skew_x() -> Mat3 {

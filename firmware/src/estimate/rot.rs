@@ -4,44 +4,12 @@
 //! single-precision FPU emulates in software (≈ 1 200 instructions per call), and the
 //! generic `frame` helpers call them again for every rotation, partial derivative and
 //! composition (≈ 100 calls per component and pulse). Here each angle's sine and cosine
-//! is computed once in `f32` ([`sin_cos`], ≤ 2 ulp on the angles the filter sees), and
+//! is computed once in `f32` ([`crate::frame::sin_cos`], ≤ 2 ulp on the angles the filter sees), and
 //! the rotation `R = Rz(φ) Ry(θ) Rx(ψ)` (IROS 2006 eq. 2), its partial derivatives and
 //! the Jacobians of the composition `Ψ ⊕ ΔΨ` (IROS eq. 5–6) are written out from them.
 
-use crate::frame::{Rpy, rpy_from_rotation};
+use crate::frame::{Rpy, rpy_from_rotation, sin_cos};
 use crate::{Mat3, Vec3};
-
-/// `π/2` split in three parts for the Cody–Waite reduction; `HI` and `MID` have few
-/// enough significant bits that `k·HI` and `k·MID` are exact for `|k| < 2¹²`.
-const PIO2_HI: f32 = 1.570_312_5;
-const PIO2_MID: f32 = 4.838_705e-4;
-const PIO2_LO: f32 = -4.371_139e-8;
-/// Beyond this magnitude the reduction above loses accuracy; `libm` takes over (the
-/// filter's angles are wrapped to (−π, π], so this never happens in practice).
-const FAST_LIMIT: f32 = 4096.0;
-
-/// `(sin a, cos a)` in `f32`: reduction to `[−π/4, π/4]` by a multiple of `π/2`, then
-/// the minimax polynomials of musl's `__sindf`/`__cosdf` evaluated in `f32`.
-pub(crate) fn sin_cos(a: f32) -> (f32, f32) {
-    // NaN goes to `libm`, which propagates it.
-    if a.is_nan() || a.abs() >= FAST_LIMIT {
-        return (libm::sinf(a), libm::cosf(a));
-    }
-    let k = (a * core::f32::consts::FRAC_2_PI + 0.5f32.copysign(a)) as i32;
-    let kf = k as f32;
-    let r = ((a - kf * PIO2_HI) - kf * PIO2_MID) - kf * PIO2_LO;
-    let r2 = r * r;
-    let s = r + r
-        * r2
-        * (-0.166_666_67 + r2 * (8.333_329e-3 + r2 * (-1.983_933_5e-4 + r2 * 2.718_311_4e-6)));
-    let c = 1.0 + r2 * (-0.5 + r2 * (4.166_662_3e-2 + r2 * (-1.388_676_4e-3 + r2 * 2.439_045e-5)));
-    match k & 3 {
-        0 => (s, c),
-        1 => (c, -s),
-        2 => (-s, -c),
-        _ => (-c, s),
-    }
-}
 
 /// A rotation `R(Ψ)` with its partial derivatives `∂R/∂ψ`, `∂R/∂θ`, `∂R/∂φ`.
 #[derive(Debug, Clone, Copy)]
