@@ -145,8 +145,9 @@ pub struct Simulation {
     pub receiver: ReceiverConfig,
 }
 
-/// Independent random streams of one seed.
-fn stream(seed: u64, id: u64) -> ChaCha8Rng {
+/// Independent random streams of one seed (shared with the bus level so both levels
+/// draw the same noise).
+pub fn stream(seed: u64, id: u64) -> ChaCha8Rng {
     let mut r = ChaCha8Rng::seed_from_u64(seed);
     r.set_stream(id);
     r

@@ -24,8 +24,6 @@ use crate::world::World;
 use anyhow::{Context, Result, anyhow};
 use firmware::drivers::ads131m04::{Ads131m04, Config, Error as AdcError};
 use firmware::frontend::{Frontend, FrontendConfig, FrontendStats};
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
 
 /// Seed stream of the measurement-level IMU noise (see `scenario::simulate`).
 const IMU_STREAM: u64 = 2;
@@ -49,11 +47,7 @@ pub struct BusRun {
     pub i2c_transactions: u64,
 }
 
-fn stream(seed: u64, id: u64) -> ChaCha8Rng {
-    let mut r = ChaCha8Rng::seed_from_u64(seed);
-    r.set_stream(id);
-    r
-}
+use crate::scenario::stream;
 
 /// Runs the scenario of `cfg` through the emulated chips and the firmware's drivers and DSP
 /// behind the analog chain `chain`.
