@@ -21,6 +21,7 @@
 //! mA·m², so that noise variances (~1e-5 (µA/m)²), moments (3 … 30) and positions (m)
 //! are all far from the ends of the `f32` range; the public API is SI.
 
+pub mod baselines;
 mod gaussian;
 mod init;
 mod mixture;
