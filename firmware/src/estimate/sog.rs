@@ -374,7 +374,10 @@ const MAX_VARIANCE: f32 = 1.0e6;
 
 /// Refuses finite inputs outside any physical range (found by fuzzing: ±f32::MAX
 /// translations and angles overflowed the composition to ±∞ and broke covariances).
-pub(crate) fn check_physical_range(motion: &Displacement, attitude: &Attitude) -> Result<(), EstimateError> {
+pub(crate) fn check_physical_range(
+    motion: &Displacement,
+    attitude: &Attitude,
+) -> Result<(), EstimateError> {
     let in_range = motion.translation.norm() <= MAX_TRANSLATION_M
         && motion.absolute.norm() <= MAX_TRANSLATION_M
         && (0..3).all(|i| motion.absolute_cov[(i, i)] <= MAX_VARIANCE)

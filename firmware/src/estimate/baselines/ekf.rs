@@ -57,7 +57,12 @@ impl SingleEkf {
 
     /// Initializes on the flux line of pulse `z` (µA/m in `R_1`); `Waiting` when the pulse
     /// is too weak or cannot be inverted.
-    fn try_initialize(&mut self, attitude: &Attitude, z: &Vec3, outcome: StepOutcome) -> StepReport {
+    fn try_initialize(
+        &mut self,
+        attitude: &Attitude,
+        z: &Vec3,
+        outcome: StepOutcome,
+    ) -> StepReport {
         self.initialized = false;
         self.inconsistent_pulses = 0;
         if !strong_enough(&self.config, z) {

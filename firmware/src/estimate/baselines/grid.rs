@@ -139,7 +139,12 @@ impl<const NX: usize, const NY: usize> HistogramFilter<NX, NY> {
     }
 
     /// Builds the grid around the receiver from pulse `z` (µA/m in `R_1`).
-    fn try_initialize(&mut self, attitude: &Attitude, z: &Vec3, outcome: StepOutcome) -> StepReport {
+    fn try_initialize(
+        &mut self,
+        attitude: &Attitude,
+        z: &Vec3,
+        outcome: StepOutcome,
+    ) -> StepReport {
         self.initialized = false;
         if !strong_enough(&self.config, z) {
             return report(StepOutcome::Waiting, 0);
@@ -172,8 +177,7 @@ impl<const NX: usize, const NY: usize> HistogramFilter<NX, NY> {
                         Ok(m) => {
                             let m = m / K_H;
                             let ln_m = libm::logf(m.norm());
-                            let out =
-                                (ln_lo - ln_m).max(ln_m - ln_hi).max(0.0) / LOG_MOMENT_EDGE;
+                            let out = (ln_lo - ln_m).max(ln_m - ln_hi).max(0.0) / LOG_MOMENT_EDGE;
                             Cell {
                                 log_w: -0.5 * out * out,
                                 m: [m.x, m.y, m.z],

@@ -287,17 +287,23 @@ impl MotionNoise {
         MotionDraw {
             dp: self.dp + Vec3::new(n[0], n[1], n[2]),
             drot: self.drot + Vec3::new(n[3], n[4], n[5]),
-            a: self.a + self.la * gauss3(rng),
+            // Draw the absolute part only when there is one (rare: lifts).
+            a: if self.la == Mat3::zeros() {
+                self.a
+            } else {
+                self.a + self.la * gauss3(rng)
+            },
         }
     }
 }
 
 /// The composition of one pose hypothesis (IROS eq. 5–7 with the scale state):
-/// `Ψ' = Ψ ⊕ ΔΨ`, `p' = p − R(Ψ)(s·Δp + a)`; `m` and `s` carry over.
-pub(crate) fn compose_pose(psi: &Rpy, p: &Vec3, s: f32, d: &MotionDraw) -> (Rpy, Vec3) {
+/// `Ψ' = Ψ ⊕ ΔΨ`, `p' = p − R(Ψ)(s·Δp + a)`; `m` and `s` carry over. Also returns
+/// `R(Ψ') = R(Ψ) R(ΔΨ)`, which the measurement needs next.
+pub(crate) fn compose_pose(psi: &Rpy, p: &Vec3, s: f32, d: &MotionDraw) -> (Rpy, Vec3, Mat3) {
     let r = rotation_from_rpy(psi);
-    let psi2 = rpy_from_rotation(&(r * rotation_from_rpy(&d.drot)));
-    (psi2, p - r * (d.dp * s + d.a))
+    let r2 = r * rotation_from_rpy(&d.drot);
+    (rpy_from_rotation(&r2), p - r * (d.dp * s + d.a), r2)
 }
 
 /// `L⁻¹` of the attitude noise `R = L Lᵀ` for the attitude likelihood, or `None` when it
@@ -329,7 +335,10 @@ pub(crate) const LOG_ZERO: f32 = -1.0e30;
 /// Normalizes the log-weights so the weights sum to one (log-sum-exp); returns the
 /// largest normalized weight, or `None` when every weight is zero or not finite.
 pub(crate) fn normalize<P: Weighted>(ps: &mut [P]) -> Option<f32> {
-    let max = ps.iter().map(|p| p.log_w()).fold(f32::NEG_INFINITY, f32::max);
+    let max = ps
+        .iter()
+        .map(|p| p.log_w())
+        .fold(f32::NEG_INFINITY, f32::max);
     if !max.is_finite() || max <= LOG_ZERO {
         return None;
     }
@@ -405,9 +414,7 @@ pub(crate) fn systematic_resample<P: Weighted + Copy>(ps: &mut [P], u0: f32) {
 
 /// Weighted mean and covariance of positions `(w, p)` (weights summing to one).
 pub(crate) fn weighted_moments(items: impl Iterator<Item = (f32, Vec3)> + Clone) -> (Vec3, Mat3) {
-    let mean = items
-        .clone()
-        .fold(Vec3::zeros(), |acc, (w, p)| acc + p * w);
+    let mean = items.clone().fold(Vec3::zeros(), |acc, (w, p)| acc + p * w);
     let cov = items.fold(Mat3::zeros(), |acc, (w, p)| {
         let d = p - mean;
         acc + d * d.transpose() * w
@@ -506,7 +513,11 @@ mod tests {
         }
         for (c, w) in counts.iter().zip(raw) {
             let mean = c / f64::from(trials);
-            assert!((mean - 4.0 * f64::from(w)).abs() < 0.03, "{mean} vs {}", 4.0 * w);
+            assert!(
+                (mean - 4.0 * f64::from(w)).abs() < 0.03,
+                "{mean} vs {}",
+                4.0 * w
+            );
         }
     }
 
@@ -525,7 +536,10 @@ mod tests {
                 .ln()
                 - 0.5f64.ln();
             let got = f64::from(sign_ambiguous_log_lik(dp, dn));
-            assert!((got - expect).abs() < 1e-4 * (1.0 + expect.abs()), "{got} {expect}");
+            assert!(
+                (got - expect).abs() < 1e-4 * (1.0 + expect.abs()),
+                "{got} {expect}"
+            );
         }
     }
 }

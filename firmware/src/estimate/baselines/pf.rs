@@ -22,12 +22,12 @@ use super::super::{
 };
 use super::{
     LOG_ZERO, MotionNoise, ParticleConfig, Prng, Weighted, attitude_log_lik, attitude_whitener,
-    check_inputs, compose_pose, gauss3, initial_region, n_eff, noise_var, normalize,
-    sample_region, sign_ambiguous_log_lik, strong_enough, systematic_resample, weighted_moments,
+    check_inputs, compose_pose, gauss3, initial_region, n_eff, noise_var, normalize, sample_region,
+    sign_ambiguous_log_lik, strong_enough, systematic_resample, weighted_moments,
 };
-use crate::Vec3;
 use crate::dipole::{field, moment_from_field};
 use crate::frame::{Rpy, rotation_from_rpy};
+use crate::{Mat3, Vec3};
 use heapless::Vec;
 
 /// One particle: a point hypothesis of the robocentric state (44 bytes).
@@ -106,7 +106,12 @@ impl<const N: usize> ParticleFilter<N> {
     }
 
     /// Draws the particles from pulse `z` (µA/m in `R_1`).
-    fn try_initialize(&mut self, attitude: &Attitude, z: &Vec3, outcome: StepOutcome) -> StepReport {
+    fn try_initialize(
+        &mut self,
+        attitude: &Attitude,
+        z: &Vec3,
+        outcome: StepOutcome,
+    ) -> StepReport {
         self.particles.clear();
         self.inconsistent_pulses = 0;
         if !strong_enough(&self.config, z) {
@@ -185,12 +190,12 @@ fn report(outcome: StepOutcome, n: usize, best_d2: f32) -> StepReport {
     }
 }
 
-/// Weight update of one particle moved to `(psi, p)`: returns the pulse's squared
+/// Weight update of one particle moved to `p` with orientation `rot = R(Ψ)`: returns the pulse's squared
 /// distance (with the better sign, in units of the noise) and the log-likelihood, or
 /// `None` when the model cannot be evaluated there.
-fn pulse_log_lik(psi: &Rpy, p: &Vec3, m: &Vec3, z: &Vec3, r_var: f32) -> Option<(f32, f32)> {
+fn pulse_log_lik(rot: &Mat3, p: &Vec3, m: &Vec3, z: &Vec3, r_var: f32) -> Option<(f32, f32)> {
     // h = K_H R(Ψ)ᵀ H(−p_T, m) (IROS eq. 14).
-    let h = rotation_from_rpy(psi).transpose() * field(&(-p), m).ok()? * K_H;
+    let h = rot.tr_mul(&field(&(-p), m).ok()?) * K_H;
     let d2_pos = (z - h).norm_squared() / r_var;
     let d2_neg = (z + h).norm_squared() / r_var;
     Some((d2_pos.min(d2_neg), sign_ambiguous_log_lik(d2_pos, d2_neg)))
@@ -221,10 +226,10 @@ impl<const N: usize> Estimator for ParticleFilter<N> {
         let mut dropped = 0u16;
         for q in self.particles.iter_mut() {
             let d = noise.sample(&mut self.rng);
-            let (psi, p) = compose_pose(&q.psi, &q.p, q.s, &d);
+            let (psi, p, rot) = compose_pose(&q.psi, &q.p, q.s, &d);
             q.psi = psi;
             q.p = p;
-            match pulse_log_lik(&psi, &p, &q.m, &z, r_var) {
+            match pulse_log_lik(&rot, &p, &q.m, &z, r_var) {
                 Some((d2, ll)) => {
                     best_d2 = best_d2.min(d2);
                     let la = att.map_or(0.0, |l| attitude_log_lik(&psi, &attitude.rpy, &l));

@@ -28,8 +28,8 @@ use super::super::{
 };
 use super::{
     LOG_ZERO, MotionNoise, ParticleConfig, Prng, Weighted, attitude_log_lik, attitude_whitener,
-    check_inputs, compose_pose, gauss3, initial_region, n_eff, noise_var, normalize,
-    sample_region, sign_ambiguous_log_lik, strong_enough, systematic_resample, weighted_moments,
+    check_inputs, compose_pose, gauss3, initial_region, n_eff, noise_var, normalize, sample_region,
+    sign_ambiguous_log_lik, strong_enough, systematic_resample, weighted_moments,
 };
 use crate::dipole::field_matrix;
 use crate::frame::{Rpy, rotation_from_rpy};
@@ -133,10 +133,10 @@ pub(crate) fn moment_update(
     })
 }
 
-/// `H = K_H R(Ψ)ᵀ G(−p_T)`: the pulse as a linear function of the moment (mA·m² → µA/m).
-fn moment_jacobian(psi: &Rpy, p: &Vec3) -> Option<Mat3> {
+/// `H = K_H R(Ψ)ᵀ G(−p_T)` from `rot = R(Ψ)`: the pulse as a linear function of the moment (mA·m² → µA/m).
+fn moment_jacobian(rot: &Mat3, p: &Vec3) -> Option<Mat3> {
     let g = field_matrix(&(-p)).ok()?;
-    Some(rotation_from_rpy(psi).transpose() * g * K_H)
+    Some(rot.tr_mul(&g) * K_H)
 }
 
 /// Rao-Blackwellized particle filter with room for `N` particles (no heap).
@@ -191,7 +191,12 @@ impl<const N: usize> Rbpf<N> {
     }
 
     /// Draws the particles and applies pulse `z` (µA/m in `R_1`) to their moment priors.
-    fn try_initialize(&mut self, attitude: &Attitude, z: &Vec3, outcome: StepOutcome) -> StepReport {
+    fn try_initialize(
+        &mut self,
+        attitude: &Attitude,
+        z: &Vec3,
+        outcome: StepOutcome,
+    ) -> StepReport {
         self.particles.clear();
         self.inconsistent_pulses = 0;
         if !strong_enough(&self.config, z) {
@@ -222,7 +227,7 @@ impl<const N: usize> Rbpf<N> {
             } else {
                 1.0 + self.config.scale_sigma * self.rng.gauss()
             };
-            let Some(h) = moment_jacobian(&psi, &p) else {
+            let Some(h) = moment_jacobian(&rotation_from_rpy(&psi), &p) else {
                 continue;
             };
             let Some(u) = moment_update(&Vec3::zeros(), &prior, &h, z, r_var) else {
@@ -301,10 +306,10 @@ impl<const N: usize> Estimator for Rbpf<N> {
         let mut dropped = 0u16;
         for q in self.particles.iter_mut() {
             let d = noise.sample(&mut self.rng);
-            let (psi, p) = compose_pose(&q.psi, &q.p, q.s, &d);
+            let (psi, p, rot) = compose_pose(&q.psi, &q.p, q.s, &d);
             q.psi = psi;
             q.p = p;
-            let updated = moment_jacobian(&psi, &p)
+            let updated = moment_jacobian(&rot, &p)
                 .and_then(|h| moment_update(&q.m, &unpack3(&q.pm), &h, &z, r_var));
             match updated {
                 Some(u) => {

@@ -47,8 +47,10 @@ fn rbpf_converges_on_the_easy_case() {
     let o = errors("rbpf", 500..504, easy, config, |s| {
         Rbpf::<600>::new(config, s).unwrap()
     });
+    // From 40–70 m to the victim: measured 0.07–0.72 m.
     let med = median(o.iter().map(|o| o.err_h).collect());
-    assert!(med < 1.0, "median {med}");
+    assert!(med < 0.8, "median {med}");
+    assert!(o.iter().all(|o| o.err_h < 2.0));
 }
 
 #[test]
@@ -57,8 +59,10 @@ fn particle_filter_converges_on_the_easy_case() {
     let o = errors("pf", 500..504, easy, config, |s| {
         ParticleFilter::<1000>::new(config, s).unwrap()
     });
+    // Measured 0.19–1.10 m.
     let med = median(o.iter().map(|o| o.err_h).collect());
-    assert!(med < 2.0, "median {med}");
+    assert!(med < 1.0, "median {med}");
+    assert!(o.iter().all(|o| o.err_h < 2.5));
 }
 
 #[test]
@@ -67,10 +71,50 @@ fn histogram_filter_converges_on_the_easy_case() {
     let o = errors("grid", 500..504, easy, config, |_| {
         HistogramFilter::<40, 40>::new(config).unwrap()
     });
+    // Measured 0.45–0.83 m (three depth layers; the depth is only known to a layer).
     let med = median(o.iter().map(|o| o.err_h).collect());
-    assert!(med < 2.0, "median {med}");
+    assert!(med < 1.0, "median {med}");
+    assert!(o.iter().all(|o| o.err_h < 2.0));
 }
 
+#[test]
+fn baselines_run_robocentric() {
+    // Noisy dead reckoning and attitude: every baseline still ends within a few metres
+    // (measured: RBPF 0.27–1.05 m, PF 0.16–0.73 m, grid 0.67–1.08 m on these seeds; the SOGs filter's tests ask 0.2 m median of it).
+    let config = SogConfig::default();
+    let all = [
+        errors(
+            "rbpf robocentric",
+            600..603,
+            Setup::robocentric,
+            config,
+            |s| Rbpf::<600>::new(config, s).unwrap(),
+        ),
+        errors(
+            "pf robocentric",
+            600..603,
+            Setup::robocentric,
+            config,
+            |s| ParticleFilter::<1000>::new(config, s).unwrap(),
+        ),
+        errors(
+            "grid robocentric",
+            600..603,
+            Setup::robocentric,
+            config,
+            |_| HistogramFilter::<40, 40>::new(config).unwrap(),
+        ),
+    ];
+    for o in &all {
+        assert!(o.iter().all(|o| o.err_h < 3.0), "{o:?}");
+    }
+}
+
+/// How the single EKF fails: on most walks its one Gaussian, started on the flux line,
+/// slides into the victim's basin and converges as precisely as the mixture; on some it
+/// is pulled to a wrong point of the ring of positions that explain the first pulses and
+/// stays there, confidently — the truth leaves its 3σ ellipsoid — while the SOGs filter,
+/// which keeps every hypothesis until the pulses rule it out, converges on all of them.
 #[test]
 fn single_ekf_fails_where_the_sog_does_not() {
     let config = SogConfig::known_trajectory();
@@ -81,22 +125,225 @@ fn single_ekf_fails_where_the_sog_does_not() {
         DefaultSog::new(config).unwrap()
     });
     let worst = |o: &[Outcome]| o.iter().map(|o| o.err_h).fold(0.0, f32::max);
-    println!("ekf worst {} sog worst {}", worst(&ekf), worst(&sog));
+    let cons = |o: &[Outcome]| o.iter().map(|o| o.consistent).sum::<f32>() / o.len() as f32;
+    println!(
+        "worst: ekf {} sog {}; inside 3σ: ekf {} sog {}",
+        worst(&ekf),
+        worst(&sog),
+        cons(&ekf),
+        cons(&sog)
+    );
+    // Measured: EKF worst 3.7 m (seed 506), SOG worst 0.06 m.
+    assert!(worst(&sog) < 0.2);
+    assert!(worst(&ekf) > 1.0 && worst(&ekf) > 10.0 * worst(&sog));
+    let failed = ekf.iter().find(|o| o.err_h > 1.0).unwrap();
+    assert!(failed.err_h > 1.0);
+    // It converged where it started in the right basin.
+    assert!(median(ekf.iter().map(|o| o.err_h).collect()) < 0.5);
+    // Confidently wrong: the truth is outside its 3σ more often than the mixture's.
+    assert!(cons(&ekf) < cons(&sog), "{} {}", cons(&ekf), cons(&sog));
 }
 
 #[test]
-fn rbpf_robocentric_runs() {
+fn moment_update_matches_the_f64_closed_form() {
+    let mut rng = super::Prng::new(11);
+    for _ in 0..200 {
+        let m = Vec3::new(rng.gauss(), rng.gauss(), rng.gauss()) * 10.0;
+        let a = Mat3::from_fn(|_, _| rng.gauss()) * 3.0;
+        let pm = a * a.transpose() + Mat3::identity();
+        let h = Mat3::from_fn(|_, _| rng.gauss()) * 0.5;
+        let z = h * m + Vec3::new(rng.gauss(), rng.gauss(), rng.gauss()) * 2.0;
+        let r_var = 0.5 + rng.uniform() * 4.0;
+        let Some(u) = moment_update(&m, &pm, &h, &z, r_var) else {
+            panic!("update refused");
+        };
+        // Textbook KF in f64 with an explicit inverse, for the sign it chose.
+        let (m64, p64, h64, z64) = (
+            m.cast::<f64>(),
+            pm.cast::<f64>(),
+            h.cast::<f64>(),
+            z.cast::<f64>(),
+        );
+        let s = h64 * p64 * h64.transpose() + Matrix3::identity() * f64::from(r_var);
+        let s_inv = s.try_inverse().unwrap();
+        let k = p64 * h64.transpose() * s_inv;
+        let d2 = |nu: &Vector3<f64>| (nu.transpose() * s_inv * nu)[0];
+        let (nu_p, nu_n) = (z64 - h64 * m64, -z64 - h64 * m64);
+        let nu = if d2(&nu_n) < d2(&nu_p) { nu_n } else { nu_p };
+        let m_post = m64 + k * nu;
+        let p_post = (Matrix3::identity() - k * h64) * p64;
+        let lik = 0.5 * (-0.5 * d2(&nu_p)).exp() + 0.5 * (-0.5 * d2(&nu_n)).exp();
+        let log_lik = lik.ln() - 0.5f64.ln() - 0.5 * s.determinant().ln();
+        let scale = m_post.norm() + 1.0;
+        assert!((u.m.cast::<f64>() - m_post).norm() < 1e-4 * scale, "mean");
+        assert!(
+            (u.pm.cast::<f64>() - p_post).norm() < 1e-4 * p64.norm(),
+            "covariance"
+        );
+        assert!((f64::from(u.d2) - d2(&nu)).abs() < 1e-3 * (1.0 + d2(&nu)));
+        if lik > 1e-30 {
+            assert!(
+                (f64::from(u.log_lik) - log_lik).abs() < 1e-3 * (1.0 + log_lik.abs()),
+                "{} {log_lik}",
+                u.log_lik
+            );
+        }
+    }
+}
+
+#[test]
+fn particle_filters_resample_and_keep_their_size() {
+    let config = SogConfig::known_trajectory();
+    let setup = easy(501);
+    let mut rb = Rbpf::<300>::new(config, 1).unwrap();
+    run(&setup, &mut rb, &config);
+    assert!(rb.resamples() > 0);
+    assert_eq!(rb.estimate().unwrap().n_components, 300);
+    let n = rb.n_eff();
+    assert!(n > 0.0 && n <= 300.0 + 1e-2, "{n}");
+    let mut pf = ParticleFilter::<300>::new(config, 1).unwrap();
+    run(&setup, &mut pf, &config);
+    assert!(pf.resamples() > 0);
+    assert_eq!(pf.estimate().unwrap().n_components, 300);
+    // Seeded: the same seed gives the same run.
+    let mut again = ParticleFilter::<300>::new(config, 1).unwrap();
+    run(&setup, &mut again, &config);
+    assert_eq!(pf, again);
+}
+
+/// Initializes with a strong pulse, one step, then checks that every bad input is
+/// refused with its error and leaves the filter exactly as it was.
+fn refuses_bad_inputs<E: Estimator + Clone + PartialEq + core::fmt::Debug>(mut f: E) {
+    let att = Attitude::with_sigmas(Rpy::new(0.0, 0.1, 0.3), 0.01, 0.05);
+    let h =
+        crate::dipole::field(&Vec3::new(-30.0, 5.0, 2.0), &Vec3::new(0.01, 0.0, 0.005)).unwrap();
+    let r = f
+        .step(&Displacement::zero(), &att, &Pulse { h, t: 0.0 })
+        .unwrap();
+    assert_eq!(r.outcome, StepOutcome::Initialized);
+    let motion = Displacement::with_sigmas(Vec3::new(1.0, 0.0, 0.0), Rpy::zeros(), 0.03, 0.005);
+    f.step(&motion, &att, &Pulse { h, t: 1.0 }).unwrap();
+    let before = f.clone();
+    let good = Vec3::new(1e-6, -2e-7, 3e-8);
+    let p = |h: Vec3, t: f32| Pulse { h, t };
+    let cases: [(Displacement, Attitude, Pulse, EstimateError); 9] = [
+        (
+            motion,
+            att,
+            p(Vec3::new(f32::NAN, 0.0, 1e-6), 2.0),
+            EstimateError::NonFinite,
+        ),
+        (
+            motion,
+            att,
+            p(good, f32::INFINITY),
+            EstimateError::NonFinite,
+        ),
+        (motion, att, p(Vec3::zeros(), 2.0), EstimateError::ZeroField),
+        (
+            motion,
+            att,
+            p(Vec3::new(2.0, 0.0, 0.0), 2.0),
+            EstimateError::Saturated,
+        ),
+        (motion, att, p(good, 0.5), EstimateError::TimeWentBackwards),
+        (
+            Displacement {
+                translation: Vec3::new(f32::NAN, 0.0, 0.0),
+                ..motion
+            },
+            att,
+            p(good, 2.0),
+            EstimateError::NonFinite,
+        ),
+        (
+            Displacement {
+                cov: -Mat6::identity(),
+                ..motion
+            },
+            att,
+            p(good, 2.0),
+            EstimateError::InvalidCovariance,
+        ),
+        (
+            Displacement {
+                translation: Vec3::new(-f32::MAX, 0.0, 0.0),
+                ..motion
+            },
+            att,
+            p(good, 2.0),
+            EstimateError::OutOfRange,
+        ),
+        (
+            motion,
+            Attitude {
+                rpy: Rpy::new(1e30, 0.0, 0.0),
+                ..att
+            },
+            p(good, 2.0),
+            EstimateError::OutOfRange,
+        ),
+    ];
+    for (m, a, pulse, e) in cases {
+        assert_eq!(f.step(&m, &a, &pulse), Err(e));
+        assert_eq!(f, before, "state changed after {e:?}");
+    }
+    let r = f.step(&motion, &att, &p(good, 2.0)).unwrap();
+    assert!(r.outcome != StepOutcome::Waiting);
+    let e = f.estimate().unwrap();
+    assert!(e.p.iter().chain(e.cov.iter()).all(|v| v.is_finite()));
+    f.reset();
+    assert!(!f.is_initialized() && f.estimate().is_none());
+}
+
+#[test]
+fn every_baseline_refuses_bad_inputs_and_keeps_its_state() {
     let config = SogConfig::default();
-    errors("rbpf robocentric", 600..603, Setup::robocentric, config, |s| {
-        Rbpf::<600>::new(config, s).unwrap()
-    });
-    errors("pf robocentric", 600..603, Setup::robocentric, config, |s| {
-        ParticleFilter::<1000>::new(config, s).unwrap()
-    });
-    errors("grid robocentric", 600..603, Setup::robocentric, config, |_| {
-        HistogramFilter::<40, 40>::new(config).unwrap()
-    });
-    errors("ekf robocentric", 600..603, Setup::robocentric, config, |_| {
-        SingleEkf::new(config).unwrap()
-    });
+    refuses_bad_inputs(SingleEkf::new(config).unwrap());
+    refuses_bad_inputs(ParticleFilter::<64>::new(config, 3).unwrap());
+    refuses_bad_inputs(Rbpf::<64>::new(config, 3).unwrap());
+    refuses_bad_inputs(HistogramFilter::<16, 16>::new(config).unwrap());
+}
+
+#[test]
+fn invalid_configurations_are_refused() {
+    let bad = SogConfig {
+        m_min: 0.0,
+        ..SogConfig::default()
+    };
+    assert!(SingleEkf::new(bad).is_err());
+    assert!(Rbpf::<8>::new(bad, 1).is_err());
+    assert!(ParticleFilter::<8>::new(bad, 1).is_err());
+    assert!(HistogramFilter::<8, 8>::new(bad).is_err());
+    assert!(HistogramFilter::<2, 8>::new(SogConfig::default()).is_err());
+    let params = super::ParticleConfig {
+        resample_fraction: f32::NAN,
+        ..super::ParticleConfig::seeded(1)
+    };
+    assert!(Rbpf::<8>::with_params(SogConfig::default(), params).is_err());
+    assert!(ParticleFilter::<1>::new(SogConfig::default(), 1).is_err());
+}
+
+#[test]
+fn weak_first_pulse_waits() {
+    let config = SogConfig::default();
+    let att = Attitude::with_sigmas(Rpy::zeros(), 0.01, 0.05);
+    let weak = Pulse {
+        h: Vec3::new(3e-9, 0.0, 0.0),
+        t: 0.0,
+    };
+    let z = Displacement::zero();
+    let outcomes = [
+        SingleEkf::new(config).unwrap().step(&z, &att, &weak),
+        ParticleFilter::<16>::new(config, 1)
+            .unwrap()
+            .step(&z, &att, &weak),
+        Rbpf::<16>::new(config, 1).unwrap().step(&z, &att, &weak),
+        HistogramFilter::<8, 8>::new(config)
+            .unwrap()
+            .step(&z, &att, &weak),
+    ];
+    for o in outcomes {
+        assert_eq!(o.unwrap().outcome, StepOutcome::Waiting);
+    }
 }
