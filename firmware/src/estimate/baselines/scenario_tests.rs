@@ -347,3 +347,10 @@ fn weak_first_pulse_waits() {
         assert_eq!(o.unwrap().outcome, StepOutcome::Waiting);
     }
 }
+
+#[test]
+fn bytes_per_hypothesis_are_as_documented() {
+    assert_eq!(core::mem::size_of::<super::pf::Particle>(), 44);
+    assert_eq!(core::mem::size_of::<super::rbpf::Particle>(), 68);
+    assert_eq!(core::mem::size_of::<super::grid::Cell>(), 16);
+}
