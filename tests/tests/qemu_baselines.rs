@@ -9,6 +9,8 @@
 //!
 //! Regenerate the report: `BASELINES_QEMU_REPORT=hal-sim/reports/baselines_qemu.md cargo
 //! test -p e2e --test qemu_baselines -- --nocapture` (path relative to the workspace).
+// Test harness: a malformed or missing line of the QEMU output fails the test loudly.
+#![allow(clippy::expect_used, clippy::panic)]
 use e2e::{build_firmware_bin, run_in_qemu, workspace_root};
 use std::fmt::Write as _;
 use std::time::Duration;

@@ -235,25 +235,32 @@ impl<const NX: usize, const NY: usize> HistogramFilter<NX, NY> {
             .fold(f32::NEG_INFINITY, f32::max);
         for k in 0..DEPTH_LAYERS {
             let mut w = [[0.0f32; NY]; NX];
-            for i in 0..NX {
-                for j in 0..NY {
-                    w[i][j] = libm::expf(self.cells[i][j][k].log_w - max);
+            for (wi, ci) in w.iter_mut().zip(self.cells.iter()) {
+                for (wij, cij) in wi.iter_mut().zip(ci.iter()) {
+                    *wij = libm::expf(cij[k].log_w - max);
                 }
             }
+            // Along x; outside the grid counts as zero weight.
             let mut out = [[0.0f32; NY]; NX];
-            for i in 0..NX {
-                for j in 0..NY {
-                    let l = if i > 0 { w[i - 1][j] } else { 0.0 };
-                    let r = if i + 1 < NX { w[i + 1][j] } else { 0.0 };
-                    out[i][j] = 0.25 * l + 0.5 * w[i][j] + 0.25 * r;
+            for (i, oi) in out.iter_mut().enumerate() {
+                for (j, o) in oi.iter_mut().enumerate() {
+                    let at = |ii: Option<usize>| {
+                        ii.and_then(|ii| w.get(ii))
+                            .and_then(|row| row.get(j))
+                            .copied()
+                            .unwrap_or(0.0)
+                    };
+                    *o = 0.25 * at(i.checked_sub(1)) + 0.5 * at(Some(i)) + 0.25 * at(Some(i + 1));
                 }
             }
-            for i in 0..NX {
-                for j in 0..NY {
-                    let l = if j > 0 { out[i][j - 1] } else { 0.0 };
-                    let r = if j + 1 < NY { out[i][j + 1] } else { 0.0 };
-                    let v = 0.25 * l + 0.5 * out[i][j] + 0.25 * r;
-                    self.cells[i][j][k].log_w = if v > 0.0 {
+            // Along y, back into the log-weights.
+            for (ci, oi) in self.cells.iter_mut().zip(out.iter()) {
+                for (j, c) in ci.iter_mut().enumerate() {
+                    let at =
+                        |jj: Option<usize>| jj.and_then(|jj| oi.get(jj)).copied().unwrap_or(0.0);
+                    let v =
+                        0.25 * at(j.checked_sub(1)) + 0.5 * at(Some(j)) + 0.25 * at(Some(j + 1));
+                    c[k].log_w = if v > 0.0 {
                         libm::logf(v) + max
                     } else {
                         LOG_ZERO
