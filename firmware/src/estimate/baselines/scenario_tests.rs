@@ -354,3 +354,69 @@ fn bytes_per_hypothesis_are_as_documented() {
     assert_eq!(core::mem::size_of::<super::rbpf::Particle>(), 68);
     assert_eq!(core::mem::size_of::<super::grid::Cell>(), 16);
 }
+
+/// Side-by-side diagnostic of every filter on the same seeded walks (the full
+/// 100-scenario comparison is `hal-sim baselines-report`): `SEEDS=20 MODE=open cargo
+/// test -p firmware --release baselines_side_by_side -- --ignored --nocapture`
+/// (MODE: known, open, closed).
+#[test]
+#[ignore]
+fn baselines_side_by_side() {
+    let seeds: u64 = std::env::var("SEEDS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(10);
+    let mode = std::env::var("MODE").unwrap_or_default();
+    let (setup, config): (fn(u64) -> Setup, SogConfig) = match mode.as_str() {
+        "known" => (Setup::known, SogConfig::known_trajectory()),
+        "closed" => (
+            |s| Setup {
+                closed_loop: true,
+                ..Setup::robocentric(s)
+            },
+            SogConfig::default(),
+        ),
+        _ => (Setup::robocentric, SogConfig::default()),
+    };
+    let summary = |name: &str, o: std::vec::Vec<Outcome>| {
+        let e: std::vec::Vec<f32> = o.iter().map(|o| o.err_h).collect();
+        let max = e.iter().copied().fold(0.0, f32::max);
+        let over = e.iter().filter(|e| **e > 1.0).count();
+        println!(
+            "{mode} {name}: median {:.3} max {max:.3} >1 m {over}/{}",
+            median(e.clone()),
+            e.len()
+        );
+    };
+    let range = 1000..1000 + seeds;
+    summary(
+        "sog 240",
+        errors("sog", range.clone(), setup, config, |_| {
+            DefaultSog::new(config).unwrap()
+        }),
+    );
+    summary(
+        "ekf",
+        errors("ekf", range.clone(), setup, config, |_| {
+            SingleEkf::new(config).unwrap()
+        }),
+    );
+    summary(
+        "rbpf 5000",
+        errors("rbpf", range.clone(), setup, config, |s| {
+            Rbpf::<5000>::new(config, s).unwrap()
+        }),
+    );
+    summary(
+        "pf 5000",
+        errors("pf", range.clone(), setup, config, |s| {
+            ParticleFilter::<5000>::new(config, s).unwrap()
+        }),
+    );
+    summary(
+        "grid 64x64x3",
+        errors("grid", range, setup, config, |_| {
+            HistogramFilter::<64, 64>::new(config).unwrap()
+        }),
+    );
+}
