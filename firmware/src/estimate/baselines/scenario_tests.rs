@@ -420,3 +420,63 @@ fn baselines_side_by_side() {
         }),
     );
 }
+
+/// Feeds one random walk to `f`; every step must succeed and leave a finite estimate.
+fn random_walk_stays_finite<E: Estimator>(
+    f: &mut E,
+    p_t: Vec3,
+    m: Vec3,
+    steps: &[(f32, f32, f32, bool)],
+) -> Result<(), proptest::test_runner::TestCaseError> {
+    use proptest::prelude::*;
+    let mut pos = Vec3::zeros();
+    let mut yaw = 0.3f32;
+    let mut motion = Displacement::zero();
+    for (k, (fwd, turn, noise, flip)) in steps.iter().enumerate() {
+        let rpy = Rpy::new(0.0, 0.1, yaw);
+        let r_wr = crate::frame::rotation_from_rpy(&rpy);
+        let Ok(h_w) = crate::dipole::field(&(pos - p_t), &m) else {
+            break;
+        };
+        let h = (r_wr.transpose() * h_w) * (1.0 + noise) * if *flip { -1.0 } else { 1.0 };
+        if h.iter().any(|v| v.abs() >= 1.0) {
+            break;
+        }
+        let att = Attitude::with_sigmas(rpy, 0.01, 0.05);
+        let r = f.step(&motion, &att, &Pulse { h, t: k as f32 });
+        prop_assert!(r.is_ok(), "{:?}", r);
+        if let Some(e) = f.estimate() {
+            prop_assert!(e.p.iter().chain(e.cov.iter()).all(|v| v.is_finite()));
+            prop_assert!(e.moment.iter().all(|v| v.is_finite()) && e.max_weight.is_finite());
+        }
+        let dp = Vec3::new(*fwd, 0.0, 0.0);
+        pos += r_wr * dp;
+        yaw += turn;
+        motion = Displacement::with_sigmas(dp, Rpy::new(0.0, 0.0, *turn), 0.03, 0.005);
+    }
+    Ok(())
+}
+
+proptest::proptest! {
+    #![proptest_config(proptest::prelude::ProptestConfig { cases: 24, ..Default::default() })]
+    /// Random walks (including standing still, turning, noisy and sign-flipped pulses):
+    /// no baseline ever refuses a valid input or produces a non-finite estimate.
+    #[test]
+    fn baselines_never_produce_non_finite_estimates(
+        start in (3.0f32..60.0, -3.1f32..3.1, -4.0f32..-1.2),
+        dir in (-1.0f32..1.0, -1.0f32..1.0, 0.2f32..1.0, 3e-3f32..3e-2),
+        steps in proptest::collection::vec(
+            (-0.2f32..1.5, -0.5f32..0.5, -0.3f32..0.3, proptest::prelude::any::<bool>()),
+            1..30,
+        ),
+    ) {
+        let (d, az, z) = start;
+        let p_t = Vec3::new(d * libm::cosf(az), d * libm::sinf(az), z);
+        let m = Vec3::new(dir.0, dir.1, dir.2).normalize() * dir.3;
+        let config = SogConfig::default();
+        random_walk_stays_finite(&mut SingleEkf::new(config).unwrap(), p_t, m, &steps)?;
+        random_walk_stays_finite(&mut ParticleFilter::<64>::new(config, 5).unwrap(), p_t, m, &steps)?;
+        random_walk_stays_finite(&mut Rbpf::<64>::new(config, 5).unwrap(), p_t, m, &steps)?;
+        random_walk_stays_finite(&mut HistogramFilter::<12, 12>::new(config).unwrap(), p_t, m, &steps)?;
+    }
+}
