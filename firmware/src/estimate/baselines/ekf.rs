@@ -2,7 +2,7 @@
 //! the mixture exists to beat.
 //!
 //! Same state `[Ψ; p_T; m; s]`, same predict / sign-chosen update / compose step
-//! ([`super::super::gaussian::step_component`], IROS Algorithm 1 for one Gaussian) and
+//! (`estimate::gaussian::step_component`, IROS Algorithm 1 for one Gaussian) and
 //! attitude fusion as each Gaussian of the SOGs filter, but one Gaussian for the whole
 //! belief. It is initialized on the first pulse's flux line: the cell of the initial
 //! region (IROS III-B) closest to the horizontal field direction at the moment-prior mean

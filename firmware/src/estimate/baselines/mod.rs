@@ -9,7 +9,7 @@
 //! All reuse the SOGs filter's models rather than re-deriving them: the measurement
 //! `h = K_H R(Ψ)ᵀ H(−p_T, m)` (IROS eq. 12–14), the composition `Ψ' = Ψ ⊕ ΔΨ`,
 //! `p' = p − R(Ψ)(s·Δp + a)` (IROS eq. 5–9), the initial region of the first pulse
-//! (IROS III-B, [`super::init`]), the input checks and the sign-ambiguous pulse
+//! (IROS III-B, `estimate::init`), the input checks and the sign-ambiguous pulse
 //! likelihood `½N(z; h, S) + ½N(−z; h, S)`. No heap: capacities are const generics; the
 //! particle filters draw from a seeded [`Prng`].
 //!
