@@ -152,11 +152,11 @@ fn verdict(all: &[MethodRuns]) -> String {
         let theirs = stats(final_errors(r).into_iter());
         // A run without any estimate counts as an unbounded error.
         let missing = final_errors(r).iter().filter(|e| e.is_none()).count();
-        let (Some([sm, _, smed]), Some([bm, _, bmed])) = (mine, theirs) else {
+        let (Some([sm, _, smed]), Some([bmax, _, bmed])) = (mine, theirs) else {
             let _ = writeln!(s, "- {}: no comparable runs.", r.method.name());
             continue;
         };
-        let bm = if missing > 0 { f64::INFINITY } else { bm };
+        let bm = if missing > 0 { f64::INFINITY } else { bmax };
         let med = if smed < bmed {
             "beats"
         } else {
@@ -167,15 +167,15 @@ fn verdict(all: &[MethodRuns]) -> String {
         } else {
             "does **not** beat"
         };
+        let never = if missing > 0 {
+            format!(" ∞: in {missing} runs it gave no position at all; {bmax:.2} m over the others")
+        } else {
+            format!(" {bmax:.2} m")
+        };
         let _ = writeln!(
             s,
-            "- vs {} ({what}): the SOGs filter {med} it on the median ({smed:.2} vs {bmed:.2} m) and {max} it on the max ({sm:.2} vs {} m).",
+            "- vs {} ({what}): the SOGs filter {med} it on the median ({smed:.2} vs {bmed:.2} m) and {max} it on the max ({sm:.2} m vs{never}).",
             r.method.name(),
-            if bm.is_finite() {
-                format!("{bm:.2}")
-            } else {
-                format!("∞: {missing} runs without an estimate")
-            },
         );
     }
     s
@@ -195,11 +195,16 @@ pub fn markdown(args: &Args, all: &[MethodRuns]) -> String {
     s.push_str("### Accuracy (final error: 3-D at the last pulse)\n\n");
     s.push_str(&accuracy_table(all));
     s.push_str("\n¹ Closed loop only (DS has no estimate before it stands on the maximum): the horizontal error of the point it found, from the closed-loop rescues.\n\n");
+    s.push_str("The papers' own numbers (final error max / mean / median over 100 tries, their simulations): IROS 2006 Table I — SOGs 0.66 / 0.23 / 0.21 m, RBPF 32.5 / 2.27 / 0.28 m; ICRA 2006 Table II — DS 2.62 / 0.52 / 0.42 m. The RBPF row appears above once the firmware's RBPF is registered.\n\n");
     s.push_str("### Steps to find (closed loop, where the method guides)\n\n");
     s.push_str(&closed_loop_table(all));
     s.push_str("\nSteps are transmitter pulses from the first received pulse to \"probe here\" (DS: standing at the found maximum); the ideal walks straight there at the same speed (see `rescue.md`).\n\n");
     s.push_str("### Does the SOGs filter beat every baseline on median and max?\n\n");
     s.push_str(&verdict(all));
+    s.push_str("\nWhy, method by method:\n\n");
+    for r in all.iter() {
+        let _ = writeln!(s, "- **{}**: {}", r.method.name(), r.method.why());
+    }
     s.push_str("\n### Plots\n\n");
     let _ = writeln!(
         s,
@@ -248,7 +253,7 @@ fn pe(e: impl std::fmt::Debug) -> anyhow::Error {
 
 /// A line plot on linear axes, text drawn with embedded-graphics' mono fonts.
 fn plot(path: &Path, title: &str, x: &Axis, y: &Axis, series: &[Series]) -> Result<()> {
-    let (w, h) = (960u32, 560u32);
+    let (w, h) = (1100u32, 560u32);
     let mut buf = vec![255u8; (w * h * 3) as usize];
     let black = Rgb888::BLACK;
     let mut labels: Vec<(String, Point, Rgb888)> = Vec::new();
@@ -259,7 +264,7 @@ fn plot(path: &Path, title: &str, x: &Axis, y: &Axis, series: &[Series]) -> Resu
             .margin_top(40)
             .margin_bottom(50)
             .margin_left(70)
-            .margin_right(260)
+            .margin_right(360)
             .build_cartesian_2d(x.range.0..x.range.1, y.range.0..y.range.1)
             .map_err(pe)?;
         let grid = RGBColor(225, 225, 225);
@@ -302,7 +307,7 @@ fn plot(path: &Path, title: &str, x: &Axis, y: &Axis, series: &[Series]) -> Resu
                 .draw_series(LineSeries::new(clipped, s.colour.stroke_width(2)))
                 .map_err(pe)?;
             let ly = 50 + 22 * i as i32;
-            let lx = w as i32 - 250;
+            let lx = w as i32 - 350;
             root.draw(&PathElement::new(
                 vec![(lx, ly + 5), (lx + 24, ly + 5)],
                 s.colour.stroke_width(3),
@@ -361,15 +366,20 @@ fn error_vs_time(all: &[MethodRuns], path: &Path) -> Result<()> {
             .unwrap_or(0);
         let mut pts = Vec::new();
         for k in 0..len {
+            // Only while at least half the runs are still going.
+            let going = r.open.iter().filter(|o| o.error_trace.len() > k).count();
+            if going * 2 < r.open.len() {
+                break;
+            }
             let mut v: Vec<f64> = r
                 .open
                 .iter()
                 .filter_map(|o| o.error_trace.get(k).copied())
                 .filter(|e| e.is_finite())
                 .collect();
-            // Only while at least half the runs are still going.
-            if v.len() * 2 < r.open.len() {
-                break;
+            // Before half the runs have an estimate there is no median.
+            if v.len() * 2 < going {
+                continue;
             }
             v.sort_by(f64::total_cmp);
             let med = v.get(v.len() / 2).copied().unwrap_or(f64::NAN);
