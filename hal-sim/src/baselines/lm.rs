@@ -16,8 +16,9 @@
 //! height around mid-depth, each range spanning ±2σ. The dipole field is symmetric, so
 //! the cost has mirror minima: the fit starts from points on the ring of ranges the first
 //! pulse allows (ICRA eq. 16, `r ∈ [(m_min/4π|h|)^⅓, (2 m_max/4π|h|)^⅓]`), each with the
-//! moment that explains the first pulse exactly, keeps the best, and warm-starts from it
-//! on the next pulse (a full multi-start again every few pulses).
+//! moment that explains the first pulse exactly, runs a few iterations from each, refines
+//! the most promising to convergence, keeps the best, and warm-starts from it on the next
+//! pulse (a full multi-start again every few pulses).
 use super::dr::{DeadReckoning, WorldPulse};
 use crate::physics::{M3, V3, dipole_field};
 use firmware::estimate::{
@@ -58,6 +59,10 @@ pub struct LmConfig {
     pub starts_range: usize,
     /// A full multi-start on the first pulses and then every this many pulses.
     pub multistart_every: usize,
+    /// Iterations of every start before the most promising are refined.
+    pub probe_iterations: usize,
+    /// Starts refined to convergence (the lowest costs after `probe_iterations`).
+    pub refined_starts: usize,
     /// Iterations per LM run.
     pub max_iterations: usize,
 }
@@ -74,7 +79,9 @@ impl LmConfig {
             h_saturation: f64::from(c.h_saturation),
             starts_azimuth: 12,
             starts_range: 3,
-            multistart_every: 5,
+            multistart_every: 10,
+            probe_iterations: 4,
+            refined_starts: 4,
             max_iterations: 30,
         }
     }
@@ -102,6 +109,8 @@ impl LmConfig {
             && self.starts_azimuth > 0
             && self.starts_range > 0
             && self.multistart_every > 0
+            && self.probe_iterations > 0
+            && self.refined_starts > 0
             && self.max_iterations > 0;
         if ok {
             Ok(())
@@ -219,10 +228,10 @@ fn normal_equations(cfg: &LmConfig, obs: &[Obs], th: &V6) -> Option<(M6, V6)> {
 
 /// One Levenberg–Marquardt run from `th` (Marquardt's scaling: damping `λ diag(JᵀJ)`).
 /// Returns the end point and its cost.
-fn levenberg_marquardt(cfg: &LmConfig, obs: &[Obs], mut th: V6) -> (V6, f64) {
+fn levenberg_marquardt(cfg: &LmConfig, obs: &[Obs], mut th: V6, iterations: usize) -> (V6, f64) {
     let mut c = cost(cfg, obs, &th);
     let mut lambda = 1e-3;
-    for _ in 0..cfg.max_iterations {
+    for _ in 0..iterations {
         let Some((a, g)) = normal_equations(cfg, obs, &th) else {
             break;
         };
@@ -236,6 +245,12 @@ fn levenberg_marquardt(cfg: &LmConfig, obs: &[Obs], mut th: V6) -> (V6, f64) {
                 lambda *= 10.0;
                 continue;
             };
+            // The Gauss–Newton model's decrease of Σe² for this step: when it is
+            // negligible (whitened residuals: 1e-3 of a χ² unit) the fit has converged.
+            let predicted = -(2.0 * g.dot(&step) + step.dot(&(a * step)));
+            if predicted < 1e-3 {
+                return (th, c);
+            }
             let next = th + step;
             let cn = cost(cfg, obs, &next);
             if cn < c {
@@ -243,7 +258,7 @@ fn levenberg_marquardt(cfg: &LmConfig, obs: &[Obs], mut th: V6) -> (V6, f64) {
                 th = next;
                 c = cn;
                 lambda = (lambda / 10.0).max(1e-12);
-                improved = rel > 1e-9 && step.norm() > 1e-7;
+                improved = rel > 1e-7 && step.norm() > 1e-7;
                 break;
             }
             lambda *= 10.0;
@@ -339,9 +354,16 @@ impl LmFit {
         {
             candidates.extend(ring_starts(&self.cfg, first));
         }
+        // A few iterations from every start, then the most promising ones to convergence.
+        let mut probed: Vec<(V6, f64)> = candidates
+            .into_iter()
+            .map(|th| levenberg_marquardt(&self.cfg, &self.obs, th, self.cfg.probe_iterations))
+            .filter(|(_, c)| c.is_finite())
+            .collect();
+        probed.sort_by(|a, b| a.1.total_cmp(&b.1));
         let mut best: Option<(V6, f64)> = None;
-        for th in candidates {
-            let (th, c) = levenberg_marquardt(&self.cfg, &self.obs, th);
+        for (th, _) in probed.into_iter().take(self.cfg.refined_starts) {
+            let (th, c) = levenberg_marquardt(&self.cfg, &self.obs, th, self.cfg.max_iterations);
             if c.is_finite() && best.is_none_or(|(_, bc)| c < bc) {
                 best = Some((th, c));
             }

@@ -194,7 +194,7 @@ pub fn markdown(args: &Args, all: &[MethodRuns]) -> String {
     );
     s.push_str("### Accuracy (final error: 3-D at the last pulse)\n\n");
     s.push_str(&accuracy_table(all));
-    s.push_str("\n¹ Closed loop only (DS has no estimate before it stands on the maximum): the horizontal error of the point it found, from the closed-loop rescues.\n\n");
+    s.push_str("\n¹ Closed loop only (DS has no estimate before it stands on the maximum): the horizontal error of the point it found, from the closed-loop rescues; a rescue that never found the maximum has no position (counted in \"> 1 m\").\n\nHost time per step: mean over the runs of the estimator's `step` on this PC (release build, runs in parallel on a shared 2-core machine with other jobs running: compare within one report, not across reports).\n\n");
     s.push_str("The papers' own numbers (final error max / mean / median over 100 tries, their simulations): IROS 2006 Table I — SOGs 0.66 / 0.23 / 0.21 m, RBPF 32.5 / 2.27 / 0.28 m; ICRA 2006 Table II — DS 2.62 / 0.52 / 0.42 m. The RBPF row appears above once the firmware's RBPF is registered.\n\n");
     s.push_str("### Steps to find (closed loop, where the method guides)\n\n");
     s.push_str(&closed_loop_table(all));
@@ -208,7 +208,7 @@ pub fn markdown(args: &Args, all: &[MethodRuns]) -> String {
     s.push_str("\n### Plots\n\n");
     let _ = writeln!(
         s,
-        "![median error against time]({ERROR_PNG})\n\nMedian (over the runs still going) of the 3-D error against the pulse index, open loop.\n\n![CDF of the final error]({CDF_PNG})\n\nFraction of runs with a final error below x (open loop: 3-D; closed loop: horizontal error of the found point).\n"
+        "![median error against time]({ERROR_PNG})\n\nMedian (over the runs still going) of the 3-D error against the pulse index, open loop. The SOGs filter's curve starts when half the runs have a pulse strong enough to initialize from (|H| ≥ 10 σ_bkg); the batch methods use every pulse from the first. Runs end at different pulses (the walk's length), so the tail mixes fewer, longer runs.\n\n![CDF of the final error]({CDF_PNG})\n\nFraction of runs with a final error below x (open loop: 3-D; closed loop: horizontal error of the found point).\n"
     );
     s.push_str("### Instructions per step on the Cortex-M4F\n\nThe firmware's filters (SOGs, EKF, PF, RBPF, histogram) are counted under QEMU in [baselines_qemu.md](baselines_qemu.md). The LM fit and the RLS identifier are host-only (`f64`, every pulse kept).\n\n");
     let total: f64 = all.iter().map(|r| r.wall_s).sum();
