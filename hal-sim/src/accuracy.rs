@@ -121,10 +121,21 @@ pub struct RunResult {
     pub host_us_per_step: f64,
     /// Largest component count seen.
     pub max_components: usize,
+    /// 3-D error at every pulse (NaN before initialization), for error-vs-time plots.
+    #[serde(skip)]
+    pub error_trace: Vec<f64>,
 }
 
 fn gauss(rng: &mut impl Rng) -> f64 {
     StandardNormal.sample(rng)
+}
+
+/// The mixture components `(weight, mean, covariance)` of a filter, for the trace
+/// (`SOG_TRACE`); estimators without components give none.
+type Components<E> = fn(&E) -> Vec<(f32, firmware::Vec3, firmware::Mat3)>;
+
+fn sog_components(filter: &DefaultSog) -> Vec<(f32, firmware::Vec3, firmware::Mat3)> {
+    filter.components().collect()
 }
 
 /// Error bookkeeping shared by the open- and closed-loop runs.
@@ -158,6 +169,7 @@ impl Tracker {
                 reinitializations: 0,
                 host_us_per_step: 0.0,
                 max_components: 0,
+                error_trace: Vec::new(),
             },
             step_time_s: 0.0,
             steps: 0,
@@ -173,11 +185,15 @@ impl Tracker {
         let r = &mut self.result;
         r.pulses += 1;
         r.final_distance_m = truth.norm();
-        let Some(est) = est else { return };
+        let Some(est) = est else {
+            r.error_trace.push(f64::NAN);
+            return;
+        };
         r.max_components = r.max_components.max(est.n_components);
         let p = V3::new(est.p.x as f64, est.p.y as f64, est.p.z as f64);
         let e = p - truth;
         let err = e.norm();
+        r.error_trace.push(err);
         r.final_error_m = Some(err);
         r.final_error_h_m = Some(e.x.hypot(e.y));
         r.final_error_z_m = Some(e.z.abs());
@@ -229,9 +245,10 @@ impl Tracker {
         }
     }
 
-    fn step(
+    fn step<E: Estimator + ?Sized>(
         &mut self,
-        filter: &mut DefaultSog,
+        filter: &mut E,
+        components: Components<E>,
         motion: &Displacement,
         attitude: &Attitude,
         pulse: &Pulse,
@@ -240,8 +257,8 @@ impl Tracker {
         let out = filter.step(motion, attitude, pulse);
         self.step_time_s += start.elapsed().as_secs_f64();
         if self.trace && std::env::var("SOG_NEAR").is_ok() {
-            let mut v: Vec<(f64, f32, firmware::Vec3, firmware::Vec3)> = filter
-                .components()
+            let mut v: Vec<(f64, f32, firmware::Vec3, firmware::Vec3)> = components(filter)
+                .into_iter()
                 .map(|(w, p, c)| {
                     let cd = M3::from_fn(|i, j| c[(i, j)] as f64);
                     let e = V3::new(p.x as f64, p.y as f64, p.z as f64) - self.truth_next;
@@ -273,8 +290,8 @@ impl Tracker {
             }
         }
         if self.trace {
-            self.near = filter
-                .components()
+            self.near = components(filter)
+                .into_iter()
                 .map(|(w, p, c)| {
                     let c = M3::from_fn(|i, j| c[(i, j)] as f64);
                     let e = V3::new(p.x as f64, p.y as f64, p.z as f64) - self.truth_next;
@@ -370,6 +387,34 @@ fn noisy_attitude(rng: &mut ChaCha8Rng, noise: &MotionNoise, rpy: &V3, exact: bo
 
 /// One open-loop run: a `hal-sim` scenario, its pulses fed to the filter in order.
 pub fn run_open_loop(case: Case, seed: u64, noise: &MotionNoise) -> RunResult {
+    open_loop(
+        case,
+        seed,
+        noise,
+        |c| DefaultSog::new(c).ok().map(Box::new),
+        sog_components,
+    )
+}
+
+/// As [`run_open_loop`] (same scenario, same motion noise), with any estimator: `make`
+/// builds it from the SOGs filter's configuration for the case (moment and depth ranges,
+/// pulse noise, scale prior); `None` counts as a run that never initialized.
+pub fn run_open_loop_with(
+    case: Case,
+    seed: u64,
+    noise: &MotionNoise,
+    make: impl FnOnce(&SogConfig) -> Option<Box<dyn Estimator>>,
+) -> RunResult {
+    open_loop(case, seed, noise, |c| make(&c), |_| Vec::new())
+}
+
+fn open_loop<E: Estimator + ?Sized, B: std::ops::DerefMut<Target = E>>(
+    case: Case,
+    seed: u64,
+    noise: &MotionNoise,
+    make: impl FnOnce(SogConfig) -> Option<B>,
+    components: Components<E>,
+) -> RunResult {
     let preset = match case {
         Case::Paths => {
             if seed.is_multiple_of(2) {
@@ -403,7 +448,7 @@ pub fn run_open_loop(case: Case, seed: u64, noise: &MotionNoise) -> RunResult {
         cfg.depth_m,
         cfg.transmitter.moment_range,
     );
-    let Ok(mut filter) = DefaultSog::new(fcfg) else {
+    let Some(mut filter) = make(fcfg) else {
         return Tracker::new(seed, f64::NAN).finish();
     };
     let start = sim.world.rescuer_state(0.0).p;
@@ -429,7 +474,8 @@ pub fn run_open_loop(case: Case, seed: u64, noise: &MotionNoise) -> RunResult {
         let h = firmware::Vec3::new(pulse.h[0] as f32, pulse.h[1] as f32, pulse.h[2] as f32);
         tracker.truth_next = tx_p - s.p;
         tracker.step(
-            &mut filter,
+            &mut *filter,
+            components,
             &motion,
             &attitude,
             &Pulse {
@@ -580,6 +626,7 @@ pub fn run_closed_loop(seed: u64, noise: &MotionNoise) -> RunResult {
         tracker.truth_next = tx_p - walker.p;
         tracker.step(
             &mut filter,
+            sog_components,
             &motion,
             &attitude,
             &Pulse {

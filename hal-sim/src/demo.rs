@@ -162,7 +162,7 @@ pub fn write_frame_png(frame: &Frame, path: &Path, scale: u32) -> Result<()> {
     write_png(path, w, h, &buf)
 }
 
-fn write_png(path: &Path, w: u32, h: u32, rgb: &[u8]) -> Result<()> {
+pub(crate) fn write_png(path: &Path, w: u32, h: u32, rgb: &[u8]) -> Result<()> {
     let file =
         std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
     let mut enc = png::Encoder::new(std::io::BufWriter::new(file), w, h);
@@ -175,10 +175,10 @@ fn write_png(path: &Path, w: u32, h: u32, rgb: &[u8]) -> Result<()> {
 }
 
 /// An RGB byte buffer as an `embedded-graphics` target (for text on plots).
-struct Canvas<'a> {
-    buf: &'a mut [u8],
-    w: u32,
-    h: u32,
+pub(crate) struct Canvas<'a> {
+    pub(crate) buf: &'a mut [u8],
+    pub(crate) w: u32,
+    pub(crate) h: u32,
 }
 
 impl OriginDimensions for Canvas<'_> {

@@ -56,6 +56,10 @@ enum Command {
     /// receiver with and without step-length calibration and the classical directional
     /// search, steps and probe-point errors against the ideal walk; a markdown report.
     RescueReport(hal_sim::rescue_report::Args),
+    /// The papers' baselines (LM batch fit, RLS identifier, directional search and the
+    /// firmware's baseline filters) beside the SOGs filter on the same seeded scenarios:
+    /// a markdown report with PNG plots.
+    BaselinesReport(hal_sim::baselines::report::Args),
 }
 
 fn read_log(path: &Path) -> Result<session::Session> {
@@ -98,5 +102,8 @@ fn main() -> Result<()> {
         Command::Demo(args) => demo::run(&args, &mut stdout.lock()),
         Command::SensingReport(args) => hal_sim::sensing_report::run(&args, &mut stdout.lock()),
         Command::RescueReport(args) => hal_sim::rescue_report::run(&args, &mut stdout.lock()),
+        Command::BaselinesReport(args) => {
+            hal_sim::baselines::report::run(&args, &mut stdout.lock())
+        }
     }
 }
