@@ -195,7 +195,7 @@ pub fn markdown(args: &Args, all: &[MethodRuns]) -> String {
     s.push_str("### Accuracy (final error: 3-D at the last pulse)\n\n");
     s.push_str(&accuracy_table(all));
     s.push_str("\n¹ Closed loop only (DS has no estimate before it stands on the maximum): the horizontal error of the point it found, from the closed-loop rescues; a rescue that never found the maximum has no position (counted in \"> 1 m\").\n\nHost time per step: mean over the runs of the estimator's `step` on this PC (release build, runs in parallel on a shared 2-core machine with other jobs running: compare within one report, not across reports).\n\n");
-    s.push_str("The papers' own numbers (final error max / mean / median over 100 tries, their simulations): IROS 2006 Table I — SOGs 0.66 / 0.23 / 0.21 m, RBPF 32.5 / 2.27 / 0.28 m; ICRA 2006 Table II — DS 2.62 / 0.52 / 0.42 m. The RBPF row appears above once the firmware's RBPF is registered.\n\n");
+    s.push_str("The papers' own numbers (final error max / mean / median over 100 tries, their simulations): IROS 2006 Table I — SOGs 0.66 / 0.23 / 0.21 m, RBPF 32.5 / 2.27 / 0.28 m; ICRA 2006 Table II — DS 2.62 / 0.52 / 0.42 m.\n\n");
     s.push_str("### Steps to find (closed loop, where the method guides)\n\n");
     s.push_str(&closed_loop_table(all));
     s.push_str("\nSteps are transmitter pulses from the first received pulse to \"probe here\" (DS: standing at the found maximum); the ideal walks straight there at the same speed (see `rescue.md`).\n\n");
