@@ -275,8 +275,11 @@ impl Receiver {
         let r = match self.motion.on_imu_sample(t, acc, gyr, mag) {
             Err(MotionError::Gap { .. }) => {
                 // Resynchronize on a copy so that a refused sample leaves no trace.
+                // `resync` takes its argument as the last sample's time: resync to one
+                // period before `t`, so that `t` is then an ordinary next sample (resync
+                // to `t` itself refused every sample after a gap as not increasing).
                 let mut m = self.motion.clone();
-                m.resync(t)
+                m.resync(t - 1.0 / self.cfg.motion.imu_hz)
                     .and_then(|()| m.on_imu_sample(t, acc, gyr, mag))
                     .map(|()| {
                         self.motion = m;

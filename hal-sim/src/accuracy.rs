@@ -109,6 +109,16 @@ pub struct RunResult {
     pub inside_3sigma: usize,
     /// Steps evaluated for `inside_3sigma`.
     pub evaluated_steps: usize,
+    /// Steps with the position NEES `eᵀP⁻¹e` inside the 95 % χ²(3) bound (slides 002:
+    /// a consistent filter keeps ≈ 95 % of its steps there).
+    pub nees_inside_95: usize,
+    /// Sum of the position NEES over the evaluated steps (mean NEES ≈ 3 when consistent).
+    pub nees_sum: f64,
+    /// Updated steps with the innovation test `min_i νᵢᵀSᵢ⁻¹νᵢ` (the estimator's
+    /// `best_d2`, the component closest to the pulse) inside the 95 % χ²(3) bound.
+    pub nis_inside_95: usize,
+    /// Updated steps evaluated for `nis_inside_95`.
+    pub nis_evaluated: usize,
     /// Pulses processed.
     pub pulses: usize,
     /// Closed loop: pulses until "probe here" (`None`: never reached).
@@ -126,6 +136,10 @@ pub struct RunResult {
 fn gauss(rng: &mut impl Rng) -> f64 {
     StandardNormal.sample(rng)
 }
+
+/// 95 % quantile of χ² with 3 degrees of freedom: the bound of the NEES of a 3-D position
+/// and of the normalized innovation of a 3-axis pulse (slides 002, consistency tests).
+pub const CHI2_3DOF_95: f64 = 7.815;
 
 /// Error bookkeeping shared by the open- and closed-loop runs.
 struct Tracker {
@@ -152,6 +166,10 @@ impl Tracker {
                 error_at_10m: None,
                 inside_3sigma: 0,
                 evaluated_steps: 0,
+                nees_inside_95: 0,
+                nees_sum: 0.0,
+                nis_inside_95: 0,
+                nis_evaluated: 0,
                 pulses: 0,
                 steps_to_probe: None,
                 ideal_steps: None,
@@ -223,9 +241,14 @@ impl Tracker {
         }
         if let Some(inv) = cov.try_inverse() {
             r.evaluated_steps += 1;
-            if (e.transpose() * inv * e)[(0, 0)] <= 9.0 {
+            let nees = (e.transpose() * inv * e)[(0, 0)];
+            if nees <= 9.0 {
                 r.inside_3sigma += 1;
             }
+            if nees <= CHI2_3DOF_95 {
+                r.nees_inside_95 += 1;
+            }
+            r.nees_sum += nees;
         }
     }
 
@@ -287,6 +310,14 @@ impl Tracker {
         }
         self.steps += 1;
         self.last = out.ok();
+        if let Ok(report) = out
+            && report.outcome == firmware::estimate::StepOutcome::Updated
+        {
+            self.result.nis_evaluated += 1;
+            if f64::from(report.best_d2) <= CHI2_3DOF_95 {
+                self.result.nis_inside_95 += 1;
+            }
+        }
         if let Ok(report) = out
             && report.outcome == firmware::estimate::StepOutcome::Reinitialized
         {
@@ -801,6 +832,7 @@ pub fn case_report(case: Case, runs: &[RunResult]) -> String {
         fmt3(host),
         fmt3(comps),
     );
+    let _ = writeln!(s, "{}", consistency_line(runs));
     let mut worst: Vec<&RunResult> = runs.iter().collect();
     worst.sort_by(|a, b| {
         b.final_error_m
@@ -820,6 +852,22 @@ pub fn case_report(case: Case, runs: &[RunResult]) -> String {
         .collect();
     let _ = writeln!(s, "Worst runs: {}.\n", list.join(", "));
     s
+}
+
+/// The NEES and innovation consistency figures of `runs` (slides 002), one sentence.
+pub fn consistency_line(runs: &[RunResult]) -> String {
+    let nees_in: usize = runs.iter().map(|r| r.nees_inside_95).sum();
+    let evaluated: usize = runs.iter().map(|r| r.evaluated_steps).sum();
+    let nees_sum: f64 = runs.iter().map(|r| r.nees_sum).sum();
+    let nis_in: usize = runs.iter().map(|r| r.nis_inside_95).sum();
+    let nis_n: usize = runs.iter().map(|r| r.nis_evaluated).sum();
+    let pct = |a: usize, b: usize| 100.0 * a as f64 / b.max(1) as f64;
+    format!(
+        "Consistency (95 % χ²(3) bound {CHI2_3DOF_95}, target ≥ 90 % inside): position NEES inside on {:.1} % of {evaluated} steps (mean NEES {:.2}, 3 when consistent); innovation (best component) inside on {:.1} % of {nis_n} updates.",
+        pct(nees_in, evaluated),
+        nees_sum / evaluated.max(1) as f64,
+        pct(nis_in, nis_n),
+    )
 }
 
 /// Runs the cases and writes the report.
