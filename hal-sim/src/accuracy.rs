@@ -908,3 +908,45 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
     out.write_all(report.as_bytes())?;
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn result(evaluated: usize, nees_in: usize, nees_sum: f64, nis: (usize, usize)) -> RunResult {
+        let mut t = Tracker::new(1, 50.0);
+        t.result.evaluated_steps = evaluated;
+        t.result.nees_inside_95 = nees_in;
+        t.result.nees_sum = nees_sum;
+        t.result.nis_inside_95 = nis.0;
+        t.result.nis_evaluated = nis.1;
+        t.finish()
+    }
+
+    #[test]
+    fn consistency_line_pools_the_runs() {
+        let runs = [result(10, 9, 30.0, (8, 10)), result(30, 27, 90.0, (20, 30))];
+        let line = consistency_line(&runs);
+        assert!(line.contains("inside on 90.0 % of 40 steps"), "{line}");
+        assert!(line.contains("mean NEES 3.00"), "{line}");
+        assert!(line.contains("inside on 70.0 % of 40 updates"), "{line}");
+    }
+
+    #[test]
+    fn the_nees_of_a_seeded_known_trajectory_run_is_counted() {
+        // The truth is compared with the filter's own covariance: a NEES above the bound
+        // on every step would be a broken filter or a broken count.
+        let r = run_open_loop(Case::Known, 3, &MotionNoise::default());
+        assert!(r.evaluated_steps > 20);
+        // NEES ≤ 7.815 implies NEES ≤ 9 (the 3σ count).
+        assert!(r.nees_inside_95 <= r.inside_3sigma);
+        assert!(r.nees_inside_95 <= r.evaluated_steps);
+        assert!(r.nis_evaluated > 20 && r.nis_inside_95 <= r.nis_evaluated);
+        let frac = r.nees_inside_95 as f64 / r.evaluated_steps as f64;
+        assert!(
+            frac > 0.5,
+            "NEES inside the 95 % bound on only {frac:.2} of the steps"
+        );
+        assert!((r.nees_sum / r.evaluated_steps as f64).is_finite());
+    }
+}

@@ -9,8 +9,8 @@
 //! Duration: `SOAK_MINUTES` at build time (default 5), e.g. the full hour with
 //! `SOAK_MINUTES=60 cargo qemu --bin qemu_soak`. Prints, one line each:
 //! - `window <minute> <pulses> <components_max> <components_end> <max_weight> <err_last_m>
-//!   <err_max_m> <err_mean_m> <dist_mean_m> <stack_hw_b> <pulse_worst_instr>
-//!   <imu_worst_instr>` every 5 simulated minutes (errors: the mixture mean against the
+//!   <err_max_m> <err_mean_m> <dist_mean_m> <nees> <scale> <scale_sigma> <stack_hw_b>
+//!   <pulse_worst_instr> <imu_worst_instr>` every 5 simulated minutes (errors: the mixture mean against the
 //!   truth, at the last pulse, the largest and the mean in the window; the mean true
 //!   distance beside them);
 //! - `soak <name> <value>` for the summary figures, then `done`.
@@ -79,6 +79,11 @@ struct Figures {
     estimates: u32,
     /// Weight of the heaviest component at the last pulse.
     max_weight: f32,
+    /// Scale factor estimate and its σ at the last pulse.
+    scale: f32,
+    scale_sigma: f32,
+    /// NEES `eᵀP⁻¹e` of the position at the last pulse (3 when consistent on average).
+    nees: f32,
     pulse_worst: u64,
     imu_worst: u64,
     non_finite: u32,
@@ -96,6 +101,9 @@ impl Figures {
             dist_sum: 0.0,
             estimates: 0,
             max_weight: 0.0,
+            scale: f32::NAN,
+            scale_sigma: f32::NAN,
+            nees: f32::NAN,
             pulse_worst: 0,
             imu_worst: 0,
             non_finite: 0,
@@ -137,6 +145,13 @@ fn period(rx: &mut Receiver, walk: &mut Walk, c: &mut InstructionCounter, f: &mu
             f.dist_sum += walk.truth().norm();
             f.estimates += 1;
             f.max_weight = e.max_weight;
+            f.scale = e.scale;
+            f.scale_sigma = e.scale_sigma;
+            let d = e.p - walk.truth();
+            f.nees = e
+                .cov
+                .try_inverse()
+                .map_or(f32::NAN, |inv| (d.transpose() * inv * d).x);
         }
     }
 }
@@ -168,7 +183,7 @@ fn main() -> ! {
             first_window_stack = hw;
         }
         hprintln!(
-            "window {} {} {} {} {} {} {} {} {} {} {} {}",
+            "window {} {} {} {} {} {} {} {} {} {} {} {} {} {} {}",
             (w + 1) * WINDOW_MIN,
             f.pulses,
             f.components_max,
@@ -178,6 +193,9 @@ fn main() -> ! {
             f.err_max,
             f.err_sum / f.estimates.max(1) as f32,
             f.dist_sum / f.estimates.max(1) as f32,
+            f.nees,
+            f.scale,
+            f.scale_sigma,
             hw,
             f.pulse_worst,
             f.imu_worst
