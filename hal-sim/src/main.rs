@@ -56,6 +56,9 @@ enum Command {
     /// receiver with and without step-length calibration and the classical directional
     /// search, steps and probe-point errors against the ideal walk; a markdown report.
     RescueReport(hal_sim::rescue_report::Args),
+    /// NEES of the application's estimate (IMU → PDR → SOGs) against the truth over
+    /// seeded simulated searches (slides 002 consistency test); a markdown table.
+    Consistency(hal_sim::faults::consistency::Args),
 }
 
 fn read_log(path: &Path) -> Result<session::Session> {
@@ -98,5 +101,6 @@ fn main() -> Result<()> {
         Command::Demo(args) => demo::run(&args, &mut stdout.lock()),
         Command::SensingReport(args) => hal_sim::sensing_report::run(&args, &mut stdout.lock()),
         Command::RescueReport(args) => hal_sim::rescue_report::run(&args, &mut stdout.lock()),
+        Command::Consistency(args) => hal_sim::faults::consistency::run(&args, &mut stdout.lock()),
     }
 }

@@ -274,14 +274,15 @@ pub fn read(mut input: impl BufRead) -> Result<Session, SessionError> {
         };
         // A last line without its newline that is not a whole JSON value was torn by a
         // crash or power loss while it was written: the records before it are kept.
-        if !buf.ends_with(b"\n") && serde_json::from_slice::<serde_json::Value>(&buf).is_err() {
-            if let Some(s) = session.as_mut() {
-                s.warnings.push(Warning {
-                    line: line_no,
-                    message: format!("torn last line ({} bytes) ignored", buf.len()),
-                });
-                break;
-            }
+        if !buf.ends_with(b"\n")
+            && serde_json::from_slice::<serde_json::Value>(&buf).is_err()
+            && let Some(s) = session.as_mut()
+        {
+            s.warnings.push(Warning {
+                line: line_no,
+                message: format!("torn last line ({} bytes) ignored", buf.len()),
+            });
+            break;
         }
         let text = std::str::from_utf8(&buf).map_err(|e| err(format!("not UTF-8: {e}")))?;
         let text = text.trim();

@@ -8,6 +8,8 @@
 //! the processing crash (a panic, caught with `catch_unwind`) at a seeded record. The log
 //! read back with `hal_sim::session::read` must hold every record up to and including the
 //! one being processed, value for value as the writer's `f32`s.
+// Test code: a failed unwrap or a panic is a failed test, the right report.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 use firmware::Vec3;
 use firmware::app::Receiver;
 use firmware::session_log::{self, LogError};

@@ -236,6 +236,8 @@ fn main() -> ! {
         "soak mean_distance_mm {}",
         (total.dist_sum / total.estimates.max(1) as f32 * 1000.0) as u32
     );
+    hprintln!("soak walked_m {}", walk.walked_m());
+    hprintln!("soak pdr_distance_m {}", rx.motion().total_distance_m());
     hprintln!("soak stack_high_water {}", hw);
     hprintln!("soak stack_high_water_first_window {}", first_window_stack);
     hprintln!("soak stack_size {}", stack::size());

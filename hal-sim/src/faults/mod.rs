@@ -11,10 +11,13 @@
 //!   IMU dropouts, magnetometer disturbance (metal nearby), a transmitter switching off;
 //! - [`stationary`]: a rescuer standing still, turning in place, or standing right above
 //!   the victim;
-//! - [`drive`]: runs a session through the application and records what it showed.
+//! - [`drive`]: runs a session through the application and records what it showed;
+//! - [`consistency`]: NEES of the whole pipeline over seeded searches
+//!   (`hal-sim consistency`).
 //!
 //! The table of faults and behaviours is in `hal-sim/reports/reliability.md`.
 pub mod bus;
+pub mod consistency;
 pub mod drive;
 pub mod measurement;
 pub mod stationary;

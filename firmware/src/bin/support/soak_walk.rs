@@ -107,6 +107,8 @@ pub struct Walk {
     p: Vec3,
     /// Heading, rad (kept in (−π, π]).
     yaw: f32,
+    /// Distance walked, m.
+    walked: f32,
 }
 
 /// What the receiver does at time `t` in the cycle: (speed m/s, yaw rate rad/s, bobbing).
@@ -131,6 +133,7 @@ impl Walk {
             p: Vec3::new(CENTRE_OFFSET_M - RADIUS_M, 0.0, 0.0),
             // Counter-clockwise (seen from above) around the centre to the north.
             yaw: -core::f32::consts::FRAC_PI_2,
+            walked: 0.0,
         }
     }
 
@@ -147,6 +150,7 @@ impl Walk {
         self.yaw = wrap_pi(self.yaw + yaw_rate * IMU_DT);
         let (s, c) = (libm::sinf(self.yaw), libm::cosf(self.yaw));
         self.p += Vec3::new(c, s, 0.0) * (v * IMU_DT);
+        self.walked += v * IMU_DT;
         // Centripetal (to the left of the heading) and the bob's vertical acceleration.
         let w = TAU * CADENCE_HZ;
         let a_z = if bob {
@@ -177,6 +181,11 @@ impl Walk {
             .iter()
             .fold(0.0f32, |a, &x| if x.abs() > a.abs() { x } else { a });
         Some(if largest < 0.0 { -h } else { h })
+    }
+
+    /// Distance walked so far, m.
+    pub fn walked_m(&self) -> f32 {
+        self.walked
     }
 
     /// The true victim offset from the receiver in `G_k` (W axes), m.
