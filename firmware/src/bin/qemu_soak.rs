@@ -7,7 +7,8 @@
 //! - estimate: never NaN, and its error against the truth at the end of every window.
 //!
 //! Duration: `SOAK_MINUTES` at build time (default 5), e.g. the full hour with
-//! `SOAK_MINUTES=60 cargo qemu --bin qemu_soak`. Prints, one line each:
+//! `SOAK_MINUTES=60 cargo qemu --bin qemu_soak`. Diagnostics, also at build time:
+//! `SOAK_WALK_ONLY=1` (no standing or turning), `SOAK_PIN_SCALE=1` (scale state σ 0.2 %). Prints, one line each:
 //! - `window <minute> <pulses> <components_max> <components_end> <max_weight> <err_last_m>
 //!   <err_max_m> <err_mean_m> <dist_mean_m> <nees> <scale> <scale_sigma> <stack_hw_b>
 //!   <pulse_worst_instr> <imu_worst_instr>` every 5 simulated minutes (errors: the mixture mean against the
@@ -163,7 +164,12 @@ fn main() -> ! {
         exit::exit(false)
     };
     let mut counter = InstructionCounter::start(peripherals.SYST);
-    let cfg = AppConfig::new(Vec3::from(EARTH_UT), Some(STEP_LENGTH_M));
+    let mut cfg = AppConfig::new(Vec3::from(EARTH_UT), Some(STEP_LENGTH_M));
+    // Diagnostic (build with `SOAK_PIN_SCALE=1`): the scale state nearly pinned to its
+    // prior (σ 0.2 % instead of the calibration's 2 %), to tell its drift from the rest.
+    if option_env!("SOAK_PIN_SCALE").is_some() {
+        cfg.sog.scale_sigma = 0.002;
+    }
     // SAFETY: the only reference ever taken to RECEIVER, here, once.
     let slot = unsafe { &mut *addr_of_mut!(RECEIVER) };
     let Ok(rx) = Receiver::emplace(slot, cfg) else {

@@ -9,7 +9,7 @@
 //!   it), with a horizontal moment of 0.01 A·m²;
 //! - one cycle of `CYCLE_S` seconds: walk a circle of radius `RADIUS_M` around a centre
 //!   `CENTRE_OFFSET_M` north of the victim (2–22 m from it) at 1.8 steps/s of 0.56 m,
-//!   then stand still, then turn in place.
+//!   then stand still, then turn in place (build with `SOAK_WALK_ONLY=1` to walk only).
 //!
 //! Sensors: specific force with the walking bob (2 cm at the step rate, ≈ 2.6 m/s²) and
 //! the centripetal acceleration, rate and earth field rotated into the body frame, white
@@ -36,7 +36,11 @@ const RADIUS_M: f32 = 10.0;
 const CENTRE_OFFSET_M: f32 = 12.0;
 /// One cycle: walking, then standing, then turning in place, s.
 const CYCLE_S: f32 = 300.0;
-const WALK_S: f32 = 240.0;
+const WALK_S: f32 = if option_env!("SOAK_WALK_ONLY").is_some() {
+    CYCLE_S
+} else {
+    240.0
+};
 const STAND_S: f32 = 30.0;
 /// Turning rate in place, rad/s.
 const TURN_RATE: f32 = 0.4;
