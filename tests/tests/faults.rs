@@ -405,15 +405,19 @@ fn adc_spi_errors_keep_the_time_base_and_withhold_the_pulse() {
     let faults = (FaultWindow::new(a + 2.0, a + 5.0, 0.05, 5), SpiFault::Error);
     let w = window_with(&sim, &mut rx, vec![], faults, (a, b));
     println!(
-        "spi errors: {:?} {:?}",
+        "spi errors {:.2}–{:.2} s: {:?}, {} samples of {:.0}, {:?}",
+        a + 2.0,
+        a + 5.0,
         w.errors,
+        w.samples,
+        (b - a) * 8000.0,
         w.pulses.iter().map(|p| (p.t, p.kind)).collect::<Vec<_>>()
     );
     assert!(w.errors.comm > 100 && w.errors.crc == 0);
     // Time base: every conversion of the window was taken (errors included).
     let expected = (b - a) * 8000.0;
     assert!(
-        (w.samples as f64 - expected).abs() < 100.0,
+        (w.samples as f64 - expected).abs() < 2.0,
         "{} samples",
         w.samples
     );
@@ -520,7 +524,9 @@ fn emi_burst_gives_no_false_vectors_and_the_floor_recovers() {
         (a, b),
     );
     println!(
-        "emi: {:?}",
+        "emi burst {:.2}–{:.2} s: {:?}",
+        a + 2.0,
+        a + 4.0,
         w.pulses.iter().map(|p| (p.t, p.kind)).collect::<Vec<_>>()
     );
     assert!(
