@@ -275,8 +275,11 @@ impl Receiver {
         let r = match self.motion.on_imu_sample(t, acc, gyr, mag) {
             Err(MotionError::Gap { .. }) => {
                 // Resynchronize on a copy so that a refused sample leaves no trace.
+                // `resync` takes its argument as the last sample's time: resync to one
+                // period before `t`, so that `t` is then an ordinary next sample (resync
+                // to `t` itself refused every sample after a gap as not increasing).
                 let mut m = self.motion.clone();
-                m.resync(t)
+                m.resync(t - 1.0 / self.cfg.motion.imu_hz)
                     .and_then(|()| m.on_imu_sample(t, acc, gyr, mag))
                     .map(|()| {
                         self.motion = m;
@@ -397,12 +400,17 @@ impl Receiver {
             PulseMeasurement::Field(h) => self.on_pulse(t, &h, p.src).map(Some),
             PulseMeasurement::Overlap
             | PulseMeasurement::Saturated
-            | PulseMeasurement::Truncated => {
-                self.overlap = true;
-                self.stats.pulses_withheld = self.stats.pulses_withheld.saturating_add(1);
-                Ok(Some(self.display_model()))
-            }
+            | PulseMeasurement::Truncated => Ok(Some(self.on_withheld_pulse())),
         }
+    }
+
+    /// A pulse the front end withheld (overlap, clipping, truncation): flags it on the
+    /// display ([`DisplayModel::overlap`]) until the next field pulse and counts it.
+    /// For callers that run the front end themselves (the board logs each pulse first).
+    pub fn on_withheld_pulse(&mut self) -> DisplayModel {
+        self.overlap = true;
+        self.stats.pulses_withheld = self.stats.pulses_withheld.saturating_add(1);
+        self.display_model()
     }
 
     /// The display now: the last pulse's guidance, with the arrow turned by the device's

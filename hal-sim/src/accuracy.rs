@@ -109,6 +109,16 @@ pub struct RunResult {
     pub inside_3sigma: usize,
     /// Steps evaluated for `inside_3sigma`.
     pub evaluated_steps: usize,
+    /// Steps with the position NEES `eᵀP⁻¹e` inside the 95 % χ²(3) bound (slides 002:
+    /// a consistent filter keeps ≈ 95 % of its steps there).
+    pub nees_inside_95: usize,
+    /// Sum of the position NEES over the evaluated steps (mean NEES ≈ 3 when consistent).
+    pub nees_sum: f64,
+    /// Updated steps with the innovation test `min_i νᵢᵀSᵢ⁻¹νᵢ` (the estimator's
+    /// `best_d2`, the component closest to the pulse) inside the 95 % χ²(3) bound.
+    pub nis_inside_95: usize,
+    /// Updated steps evaluated for `nis_inside_95`.
+    pub nis_evaluated: usize,
     /// Pulses processed.
     pub pulses: usize,
     /// Closed loop: pulses until "probe here" (`None`: never reached).
@@ -137,6 +147,9 @@ type Components<E> = fn(&E) -> Vec<(f32, firmware::Vec3, firmware::Mat3)>;
 fn sog_components(filter: &DefaultSog) -> Vec<(f32, firmware::Vec3, firmware::Mat3)> {
     filter.components().collect()
 }
+/// 95 % quantile of χ² with 3 degrees of freedom: the bound of the NEES of a 3-D position
+/// and of the normalized innovation of a 3-axis pulse (slides 002, consistency tests).
+pub const CHI2_3DOF_95: f64 = 7.815;
 
 /// Error bookkeeping shared by the open- and closed-loop runs.
 struct Tracker {
@@ -163,6 +176,10 @@ impl Tracker {
                 error_at_10m: None,
                 inside_3sigma: 0,
                 evaluated_steps: 0,
+                nees_inside_95: 0,
+                nees_sum: 0.0,
+                nis_inside_95: 0,
+                nis_evaluated: 0,
                 pulses: 0,
                 steps_to_probe: None,
                 ideal_steps: None,
@@ -239,9 +256,14 @@ impl Tracker {
         }
         if let Some(inv) = cov.try_inverse() {
             r.evaluated_steps += 1;
-            if (e.transpose() * inv * e)[(0, 0)] <= 9.0 {
+            let nees = (e.transpose() * inv * e)[(0, 0)];
+            if nees <= 9.0 {
                 r.inside_3sigma += 1;
             }
+            if nees <= CHI2_3DOF_95 {
+                r.nees_inside_95 += 1;
+            }
+            r.nees_sum += nees;
         }
     }
 
@@ -304,6 +326,14 @@ impl Tracker {
         }
         self.steps += 1;
         self.last = out.ok();
+        if let Ok(report) = out
+            && report.outcome == firmware::estimate::StepOutcome::Updated
+        {
+            self.result.nis_evaluated += 1;
+            if f64::from(report.best_d2) <= CHI2_3DOF_95 {
+                self.result.nis_inside_95 += 1;
+            }
+        }
         if let Ok(report) = out
             && report.outcome == firmware::estimate::StepOutcome::Reinitialized
         {
@@ -848,6 +878,7 @@ pub fn case_report(case: Case, runs: &[RunResult]) -> String {
         fmt3(host),
         fmt3(comps),
     );
+    let _ = writeln!(s, "{}", consistency_line(runs));
     let mut worst: Vec<&RunResult> = runs.iter().collect();
     worst.sort_by(|a, b| {
         b.final_error_m
@@ -867,6 +898,22 @@ pub fn case_report(case: Case, runs: &[RunResult]) -> String {
         .collect();
     let _ = writeln!(s, "Worst runs: {}.\n", list.join(", "));
     s
+}
+
+/// The NEES and innovation consistency figures of `runs` (slides 002), one sentence.
+pub fn consistency_line(runs: &[RunResult]) -> String {
+    let nees_in: usize = runs.iter().map(|r| r.nees_inside_95).sum();
+    let evaluated: usize = runs.iter().map(|r| r.evaluated_steps).sum();
+    let nees_sum: f64 = runs.iter().map(|r| r.nees_sum).sum();
+    let nis_in: usize = runs.iter().map(|r| r.nis_inside_95).sum();
+    let nis_n: usize = runs.iter().map(|r| r.nis_evaluated).sum();
+    let pct = |a: usize, b: usize| 100.0 * a as f64 / b.max(1) as f64;
+    format!(
+        "Consistency (95 % χ²(3) bound {CHI2_3DOF_95}, target ≥ 90 % inside): position NEES inside on {:.1} % of {evaluated} steps (mean NEES {:.2}, 3 when consistent); innovation (best component) inside on {:.1} % of {nis_n} updates.",
+        pct(nees_in, evaluated),
+        nees_sum / evaluated.max(1) as f64,
+        pct(nis_in, nis_n),
+    )
 }
 
 /// Runs the cases and writes the report.
@@ -906,4 +953,46 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
     }
     out.write_all(report.as_bytes())?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn result(evaluated: usize, nees_in: usize, nees_sum: f64, nis: (usize, usize)) -> RunResult {
+        let mut t = Tracker::new(1, 50.0);
+        t.result.evaluated_steps = evaluated;
+        t.result.nees_inside_95 = nees_in;
+        t.result.nees_sum = nees_sum;
+        t.result.nis_inside_95 = nis.0;
+        t.result.nis_evaluated = nis.1;
+        t.finish()
+    }
+
+    #[test]
+    fn consistency_line_pools_the_runs() {
+        let runs = [result(10, 9, 30.0, (8, 10)), result(30, 27, 90.0, (20, 30))];
+        let line = consistency_line(&runs);
+        assert!(line.contains("inside on 90.0 % of 40 steps"), "{line}");
+        assert!(line.contains("mean NEES 3.00"), "{line}");
+        assert!(line.contains("inside on 70.0 % of 40 updates"), "{line}");
+    }
+
+    #[test]
+    fn the_nees_of_a_seeded_known_trajectory_run_is_counted() {
+        // The truth is compared with the filter's own covariance: a NEES above the bound
+        // on every step would be a broken filter or a broken count.
+        let r = run_open_loop(Case::Known, 3, &MotionNoise::default());
+        assert!(r.evaluated_steps > 20);
+        // NEES ≤ 7.815 implies NEES ≤ 9 (the 3σ count).
+        assert!(r.nees_inside_95 <= r.inside_3sigma);
+        assert!(r.nees_inside_95 <= r.evaluated_steps);
+        assert!(r.nis_evaluated > 20 && r.nis_inside_95 <= r.nis_evaluated);
+        let frac = r.nees_inside_95 as f64 / r.evaluated_steps as f64;
+        assert!(
+            frac > 0.5,
+            "NEES inside the 95 % bound on only {frac:.2} of the steps"
+        );
+        assert!((r.nees_sum / r.evaluated_steps as f64).is_finite());
+    }
 }

@@ -8,6 +8,7 @@ pub mod budget_data;
 pub mod bus;
 pub mod closed_loop;
 pub mod demo;
+pub mod faults;
 pub mod field_map;
 pub mod inspect;
 pub mod jet;

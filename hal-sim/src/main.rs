@@ -60,6 +60,9 @@ enum Command {
     /// firmware's baseline filters) beside the SOGs filter on the same seeded scenarios:
     /// a markdown report with PNG plots.
     BaselinesReport(hal_sim::baselines::report::Args),
+    /// NEES of the application's estimate (IMU → PDR → SOGs) against the truth over
+    /// seeded simulated searches (slides 002 consistency test); a markdown table.
+    Consistency(hal_sim::faults::consistency::Args),
 }
 
 fn read_log(path: &Path) -> Result<session::Session> {
@@ -105,5 +108,6 @@ fn main() -> Result<()> {
         Command::BaselinesReport(args) => {
             hal_sim::baselines::report::run(&args, &mut stdout.lock())
         }
+        Command::Consistency(args) => hal_sim::faults::consistency::run(&args, &mut stdout.lock()),
     }
 }

@@ -253,7 +253,8 @@ pub fn read_file(path: &Path) -> Result<Session, SessionError> {
 }
 
 /// Reads a session log. Blank lines are ignored; unknown keys are ignored; unknown
-/// record types are skipped with a warning; anything else that is wrong (bad JSON, a
+/// record types are skipped with a warning, and so is a torn last line (no newline, not
+/// a whole JSON value: the writer stopped mid-record); anything else that is wrong (bad JSON, a
 /// missing or mistyped field, no header first, a second header, an unsupported version,
 /// time going backwards) is an error naming the line.
 pub fn read(mut input: impl BufRead) -> Result<Session, SessionError> {
@@ -271,6 +272,18 @@ pub fn read(mut input: impl BufRead) -> Result<Session, SessionError> {
             line: line_no,
             message,
         };
+        // A last line without its newline that is not a whole JSON value was torn by a
+        // crash or power loss while it was written: the records before it are kept.
+        if !buf.ends_with(b"\n")
+            && serde_json::from_slice::<serde_json::Value>(&buf).is_err()
+            && let Some(s) = session.as_mut()
+        {
+            s.warnings.push(Warning {
+                line: line_no,
+                message: format!("torn last line ({} bytes) ignored", buf.len()),
+            });
+            break;
+        }
         let text = std::str::from_utf8(&buf).map_err(|e| err(format!("not UTF-8: {e}")))?;
         let text = text.trim();
         if text.is_empty() {
@@ -382,9 +395,26 @@ mod tests {
     }
 
     #[test]
+    fn a_torn_last_line_is_skipped_with_a_warning() {
+        let whole = read(LOG.as_bytes()).unwrap();
+        for torn in [
+            "{\"type\":\"imu\",\"t\":1",
+            "{",
+            "{\"type\":\"pulse\",\"t\":20.0,\"h\":[1e-6,",
+        ] {
+            let s = read(format!("{LOG}{torn}").as_bytes()).unwrap();
+            assert_eq!(s.records, whole.records);
+            assert_eq!(s.warnings.len(), whole.warnings.len() + 1);
+            assert!(s.warnings.last().unwrap().message.contains("torn"));
+        }
+        // The same bytes with their newline are a malformed line, not a torn one.
+        assert!(read(format!("{LOG}{{\"type\":\"imu\",\"t\":1\n").as_bytes()).is_err());
+    }
+
+    #[test]
     fn malformed_lines_name_their_number() {
         let cases = [
-            (format!("{LOG}{{\"type\":\"imu\",\"t\":1"), 5),
+            (format!("{LOG}{{\"type\":\"imu\",\"t\":1\n"), 5),
             (format!("{LOG}{{\"type\":\"pulse\",\"t\":20.0}}\n"), 5),
             (
                 format!("{LOG}{{\"type\":\"pulse\",\"t\":1.0,\"h\":[1,2,3]}}\n"),

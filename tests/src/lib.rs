@@ -39,6 +39,27 @@ pub fn build_firmware_bin(bin: &str, features: &str) -> PathBuf {
     target_dir.join(TARGET).join("release").join(bin)
 }
 
+/// Like [`build_firmware_bin`] with extra environment variables for the build (e.g. a
+/// binary's build-time `option_env!` settings).
+pub fn build_firmware_bin_with_env(bin: &str, features: &str, env: &[(&str, &str)]) -> PathBuf {
+    let root = workspace_root();
+    let target_dir = root.join("target").join("qemu");
+    let out = Command::new(env!("CARGO"))
+        .current_dir(&root)
+        .args(["build", "-p", "firmware", "--release", "--target", TARGET])
+        .args(["--features", features, "--bin", bin])
+        .env("CARGO_TARGET_DIR", &target_dir)
+        .envs(env.iter().copied())
+        .output()
+        .expect("cargo runs");
+    assert!(
+        out.status.success(),
+        "building {bin} for {TARGET} failed:\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    target_dir.join(TARGET).join("release").join(bin)
+}
+
 /// What a QEMU run printed and how it ended.
 #[derive(Debug)]
 pub struct QemuRun {

@@ -256,7 +256,7 @@ fn main() -> ! {
                             );
                             receiver.on_pulse(pulse.t_s, &h, pulse.src).ok()
                         }
-                        _ => Some(receiver.display_model()),
+                        _ => Some(receiver.on_withheld_pulse()),
                     };
                     if let Some(model) = model
                         && screen_ok
