@@ -56,6 +56,15 @@ enum Command {
     /// receiver with and without step-length calibration and the classical directional
     /// search, steps and probe-point errors against the ideal walk; a markdown report.
     RescueReport(hal_sim::rescue_report::Args),
+    /// Simulate a team search (2–4 rescuers, 2–5 victims): one session log per rescuer,
+    /// their truth, receiver.json, the start fixes (starts.json) and the team truth.
+    TeamScenario(hal_sim::team::ScenarioArgs),
+    /// Join several rescuers' session logs into one map at their shared beacons (pose
+    /// graph, least squares on the Mahalanobis distance): team-map.json and team-map.png.
+    TeamMap(hal_sim::team::MapArgs),
+    /// Seeded team scenarios through team-map, scored against the truth; a markdown
+    /// report and a PNG.
+    TeamReport(hal_sim::team::report::Args),
 }
 
 fn read_log(path: &Path) -> Result<session::Session> {
@@ -98,5 +107,8 @@ fn main() -> Result<()> {
         Command::Demo(args) => demo::run(&args, &mut stdout.lock()),
         Command::SensingReport(args) => hal_sim::sensing_report::run(&args, &mut stdout.lock()),
         Command::RescueReport(args) => hal_sim::rescue_report::run(&args, &mut stdout.lock()),
+        Command::TeamScenario(args) => hal_sim::team::run_scenario(&args, &mut stdout.lock()),
+        Command::TeamMap(args) => hal_sim::team::run_map(&args, &mut stdout.lock()),
+        Command::TeamReport(args) => hal_sim::team::report::run(&args, &mut stdout.lock()),
     }
 }
