@@ -14,7 +14,8 @@
 //!   tens of ppm, which scales its measured periods alike: two transmitters whose periods
 //!   differ by less than about `2 × clock_ppm × P` (≈ 0.1 ms at 50 ppm) cannot be told
 //!   apart (for periods uniform over 600 ms that is about 3 in 10 000 per pair).
-//! - A track with too few pulses (< 5) or spanning < 5 s gets no signature.
+//! - A track with fewer than 4 pulses (3 intervals of one period) gets no signature and
+//!   stays a victim of its own log only.
 //! - The estimated moment magnitude (field-strength consistency) is recorded per track as
 //!   a second, weaker check; it is reported, not used to decide.
 use serde::{Deserialize, Serialize};
@@ -59,16 +60,14 @@ fn line_fit(n: &[f64], t: &[f64]) -> Option<(f64, f64, f64, f64)> {
     Some((phi, p, rms, sigma_t / snn.sqrt()))
 }
 
-/// The signature of a track from its (sorted) pulse times; `None` with fewer than 5
-/// pulses, a span under 5 s, non-finite times or no period within the standard's range.
+/// The signature of a track from its (sorted) pulse times; `None` with fewer than 4
+/// pulses, fewer than 3 intervals of one period, non-finite times or no period within the
+/// standard's range.
 pub fn fit(times: &[f64]) -> Option<Signature> {
-    if times.len() < 5 || times.iter().any(|t| !t.is_finite()) {
+    if times.len() < 4 || times.iter().any(|t| !t.is_finite()) {
         return None;
     }
-    let (t0, t1) = (times.first()?, times.last()?);
-    if t1 - t0 < 5.0 {
-        return None;
-    }
+    let t0 = times.first()?;
     // Start from the median of the consecutive differences that can be one period.
     let mut d: Vec<f64> = times
         .windows(2)
@@ -193,7 +192,10 @@ mod tests {
     #[test]
     fn too_short_or_bad_tracks_have_no_signature() {
         assert!(fit(&[0.0, 1.0, 2.0]).is_none());
+        assert!(fit(&[0.0, 1.0, 2.0, 3.0]).is_some());
         assert!(fit(&[0.0, 1.0, 2.0, 3.0, f64::NAN, 5.0]).is_none());
+        // Two intervals of a period and a long gap: too little to fit.
+        assert!(fit(&[0.0, 1.0, 2.0, 9.0]).is_none());
         // Times with no period in the standard's range.
         assert!(fit(&[0.0, 0.1, 0.2, 0.3, 0.4, 6.0]).is_none());
     }
