@@ -20,7 +20,7 @@ pub struct Args {
     #[arg(
         long,
         value_delimiter = ',',
-        default_value = "1:3:4,2:2:3,3:4:5,4:3:3,5:2:2,6:4:4"
+        default_value = "1:3:4,2:2:3,3:4:5,4:3:3,5:2:2,6:4:4,7:3:5,8:2:4,9:4:3,10:3:2,11:4:5,12:2:5"
     )]
     pub scenarios: Vec<String>,
 }
@@ -81,7 +81,41 @@ pub fn score(truth: &TeamTruth, truth_logs: &[&Session], m: &TeamMap) -> Score {
             .and_then(|x| x.src_map.get(src as usize).copied())
     };
     let mut victims = Vec::new();
+    // Association: a track is right when its id holds only its transmitter's tracks and
+    // is the id holding most of them (a transmitter split over ids counts the smaller
+    // parts wrong).
+    let groups: Vec<(usize, Vec<usize>)> = m
+        .victims
+        .iter()
+        .map(|v| {
+            (
+                v.id,
+                v.seen_by
+                    .iter()
+                    .filter_map(|s| tx_of(s.rescuer, s.src))
+                    .collect(),
+            )
+        })
+        .collect();
+    let main_id = |tx: usize| {
+        groups
+            .iter()
+            .max_by_key(|(id, txs)| {
+                (
+                    txs.iter().filter(|&&t| t == tx).count(),
+                    std::cmp::Reverse(*id),
+                )
+            })
+            .map(|g| g.0)
+    };
     let (mut good, mut all) = (0, 0);
+    for (id, txs) in &groups {
+        let pure = txs.windows(2).all(|w| w[0] == w[1]);
+        for &t in txs {
+            all += 1;
+            good += usize::from(pure && main_id(t) == Some(*id));
+        }
+    }
     for v in &m.victims {
         let txs: Vec<usize> = v
             .seen_by
@@ -89,19 +123,6 @@ pub fn score(truth: &TeamTruth, truth_logs: &[&Session], m: &TeamMap) -> Score {
             .filter_map(|s| tx_of(s.rescuer, s.src))
             .collect();
         let Some(&tx) = txs.first() else { continue };
-        // Correct: every track of this id is the same transmitter, and no other id has it.
-        let others = m
-            .victims
-            .iter()
-            .filter(|w| w.id != v.id)
-            .flat_map(|w| &w.seen_by)
-            .any(|s| tx_of(s.rescuer, s.src) == Some(tx));
-        for t in &txs {
-            all += 1;
-            if *t == tx && !others {
-                good += 1;
-            }
-        }
         let Some(tp) = truth
             .transmitters
             .get(tx)
@@ -300,7 +321,11 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
                 tot.n_multi += 1;
             }
         }
-        for (a, b) in &sc.tracks {
+        for (a, b) in sc
+            .tracks
+            .iter()
+            .filter(|t| t.0.is_finite() && t.1.is_finite())
+        {
             tot.dr += a;
             tot.corrected += b;
             tot.n_tracks += 1;

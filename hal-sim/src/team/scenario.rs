@@ -223,7 +223,14 @@ fn simulate_rescuer(
         .iter()
         .filter_map(|&i| transmitters.get(i).map(|t| [t.position[0], t.position[1]]))
         .collect();
-    let waypoints = route(start, &targets, &mut rng);
+    // A rescuer without an assigned victim sweeps its lane to the far end of the field.
+    let waypoints = if targets.is_empty() {
+        let mut w = Vec::new();
+        segment(start, [15.0 + cfg.field_m, start[1]], &mut w);
+        w
+    } else {
+        route(start, &targets, &mut rng)
+    };
     let gait = GaitParams {
         step_length_m: quantize(rng.random_range(0.50..=0.62), 1e3),
         cadence_hz: quantize(rng.random_range(1.7..=1.9), 1e3),
