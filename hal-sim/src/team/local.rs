@@ -66,7 +66,8 @@ pub struct Track {
 /// A log processed on its own.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct LocalRun {
-    /// Dead-reckoned track, one sample per pulse (of any track).
+    /// Dead-reckoned track: the first IMU sample (the start), then one sample per pulse
+    /// (of any track).
     pub dr: Vec<DrSample>,
     /// The `src` tracks, ordered by label.
     pub tracks: Vec<Track>,
@@ -173,6 +174,12 @@ pub fn process(
                 if !started {
                     dr.set_start();
                     started = true;
+                    // The walk's start: the node the start fix anchors.
+                    samples.push(DrSample {
+                        t: s.t,
+                        p: [0.0; 2],
+                        cov: [0.0; 3],
+                    });
                 }
                 for e in &mut estimators {
                     let _ = e.on_imu(t, &acc, &gyr, mag.as_ref());

@@ -344,51 +344,55 @@ fn seg_dist(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
     (p[0] - a[0] - u * dx).hypot(p[1] - a[1] - u * dy)
 }
 
-/// Fills the covered areas on a 1 m grid: a cell is covered by a rescuer when its centre
-/// lies within the strip half-width of the corrected track.
-fn cover(map: &mut TeamMap) {
+/// Centres of the 1 m cells within the strip half-width of each rescuer's corrected
+/// track: `(cell, bit r set when rescuer r covers it)`.
+pub fn covered_cells(map: &TeamMap) -> Vec<([f64; 2], u32)> {
     let w = map.options.strip_half_width_m;
     let polys: Vec<Vec<[f64; 2]>> = map
         .rescuers
         .iter()
         .map(|r| r.track.iter().step_by(3).map(|p| [p[1], p[2]]).collect())
         .collect();
-    let all = polys.iter().flatten();
     let (mut lo, mut hi) = ([f64::MAX; 2], [f64::MIN; 2]);
-    for p in all {
+    for p in polys.iter().flatten() {
         lo = [lo[0].min(p[0]), lo[1].min(p[1])];
         hi = [hi[0].max(p[0]), hi[1].max(p[1])];
     }
-    if lo[0] > hi[0] {
-        return;
+    let mut out = Vec::new();
+    if lo[0] > hi[0] || !w.is_finite() || w < 0.0 {
+        return out;
     }
-    let mut per = vec![0.0; polys.len()];
-    let mut union = 0.0;
-    let mut x = lo[0] - w;
-    while x <= hi[0] + w {
-        let mut y = lo[1] - w;
-        while y <= hi[1] + w {
-            let mut any = false;
+    let (nx, ny) = (
+        ((hi[0] - lo[0]) + 2.0 * w) as usize + 1,
+        ((hi[1] - lo[1]) + 2.0 * w) as usize + 1,
+    );
+    for ix in 0..nx {
+        for iy in 0..ny {
+            let c = [lo[0] - w + ix as f64 + 0.5, lo[1] - w + iy as f64 + 0.5];
+            let mut bits = 0u32;
             for (r, poly) in polys.iter().enumerate() {
-                let near = match poly.len() {
-                    0 => false,
-                    1 => seg_dist([x, y], poly[0], poly[0]) <= w,
-                    _ => poly.windows(2).any(|s| seg_dist([x, y], s[0], s[1]) <= w),
+                let near = match poly.as_slice() {
+                    [] => false,
+                    [p] => seg_dist(c, *p, *p) <= w,
+                    _ => poly.windows(2).any(|s| seg_dist(c, s[0], s[1]) <= w),
                 };
                 if near {
-                    per[r] += 1.0;
-                    any = true;
+                    bits |= 1 << r.min(31);
                 }
             }
-            if any {
-                union += 1.0;
+            if bits != 0 {
+                out.push((c, bits));
             }
-            y += 1.0;
         }
-        x += 1.0;
     }
-    for (r, a) in map.rescuers.iter_mut().zip(per) {
-        r.covered_area_m2 = a;
+    out
+}
+
+/// Fills the covered areas (1 m² per covered cell of [`covered_cells`]).
+fn cover(map: &mut TeamMap) {
+    let cells = covered_cells(map);
+    for (r, res) in map.rescuers.iter_mut().enumerate() {
+        res.covered_area_m2 = cells.iter().filter(|c| c.1 & (1 << r.min(31)) != 0).count() as f64;
     }
-    map.covered_area_m2 = union;
+    map.covered_area_m2 = cells.len() as f64;
 }

@@ -80,14 +80,17 @@ pub fn plot(map: &TeamMap, truth: Option<&TruthOverlay>, path: &Path) -> Result<
             .margin(20)
             .build_cartesian_2d(xr.clone(), yr.clone())
             .map_err(e)?;
-        // Covered strips: thick translucent lines of the strip's width.
-        let px_per_m = f64::from(SIZE - 40) / span;
-        let strip = (2.0 * map.options.strip_half_width_m * px_per_m).round() as u32;
-        for (r, res) in map.rescuers.iter().enumerate() {
-            let c = COLOURS[r % 4].mix(0.08).stroke_width(strip.max(1));
-            let line: Vec<(f64, f64)> = res.track.iter().map(|p| en([p[1], p[2]])).collect();
-            chart.draw_series(LineSeries::new(line, c)).map_err(e)?;
-        }
+        // Covered area: the union of the strips, 1 m cells in light grey.
+        let cells = super::map::covered_cells(map);
+        chart
+            .draw_series(cells.iter().map(|(c, _)| {
+                let (x, y) = en(*c);
+                Rectangle::new(
+                    [(x - 0.5, y - 0.5), (x + 0.5, y + 0.5)],
+                    RGBColor(236, 238, 242).filled(),
+                )
+            }))
+            .map_err(e)?;
         if let Some(t) = truth {
             for tr in &t.tracks {
                 let line: Vec<(f64, f64)> = tr.iter().map(|p| en(*p)).collect();
