@@ -126,6 +126,17 @@ pub fn build(
     starts: &[Option<StartFix>],
     opt: &MapOptions,
 ) -> Result<TeamMap, graph::GraphError> {
+    build_filtered(runs, starts, opt, &|_, _| true)
+}
+
+/// [`build`] with only the beacon edges for which `keep(rescuer, victim id)` holds (to
+/// study a beacon seen by fewer rescuers).
+pub fn build_filtered(
+    runs: &[LocalRun],
+    starts: &[Option<StartFix>],
+    opt: &MapOptions,
+    keep: &dyn Fn(usize, usize) -> bool,
+) -> Result<TeamMap, graph::GraphError> {
     let sigs: Vec<Vec<_>> = runs
         .iter()
         .map(|r| r.tracks.iter().map(|t| t.signature.clone()).collect())
@@ -183,7 +194,9 @@ pub fn build(
         }
         // Beacon edges: victim − pose = the estimator's relative position.
         for (t, &id) in run.tracks.iter().zip(ids.get(r).map_or(&[][..], |v| v)) {
-            let Some(o) = local(t) else { continue };
+            let Some(o) = local(t).filter(|_| keep(r, id)) else {
+                continue;
+            };
             let Ok(k) = idx.binary_search(&o.dr_index) else {
                 continue;
             };

@@ -28,6 +28,8 @@ pub struct Args {
 /// One victim scored.
 #[derive(Debug, Clone, PartialEq)]
 pub struct VictimScore {
+    /// Its id in the joint map.
+    pub id: usize,
     /// The true transmitter.
     pub truth: usize,
     /// Rescuers that localized it.
@@ -132,6 +134,7 @@ pub fn score(truth: &TeamTruth, truth_logs: &[&Session], m: &TeamMap) -> Score {
         };
         let err = |p: [f64; 2]| (p[0] - tp[0]).hypot(p[1] - tp[1]);
         victims.push(VictimScore {
+            id: v.id,
             truth: tx,
             localized_by: v
                 .seen_by
@@ -162,7 +165,65 @@ pub fn score(truth: &TeamTruth, truth_logs: &[&Session], m: &TeamMap) -> Score {
 }
 
 /// Runs one scenario end to end in memory: simulate, process, map, score.
+/// A shared victim mapped from one rescuer's observation only (the others' beacon edges
+/// to it removed).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Alone {
+    /// The victim's error and largest σ in the full joint map, m.
+    pub all: (f64, f64),
+    /// Its error and σ with only this rescuer's observation, m.
+    pub alone: (f64, f64),
+    /// This rescuer's own-map error, m.
+    pub own: f64,
+}
+
+/// For every victim localized by several rescuers and each of them: the joint map with
+/// only that rescuer's observation of the victim.
+pub fn leave_others_out(
+    sim: &TeamSim,
+    runs: &[local::LocalRun],
+    m: &TeamMap,
+    opt: &MapOptions,
+) -> anyhow::Result<Vec<Alone>> {
+    let starts: Vec<_> = sim.logs.iter().map(|l| Some(l.3)).collect();
+    let truths: Vec<&Session> = sim.logs.iter().map(|l| &l.1).collect();
+    let full = score(&sim.truth, &truths, m);
+    let mut out = Vec::new();
+    for v in full.victims.iter().filter(|v| v.localized_by.len() > 1) {
+        let (Some(e), Some(s)) = (v.joint_m, v.joint_sigma_m) else {
+            continue;
+        };
+        for (k, &r) in v.localized_by.iter().enumerate() {
+            let id = v.id;
+            let m1 = map::build_filtered(runs, &starts, opt, &|rr, vid| vid != id || rr == r)?;
+            let s1 = score(&sim.truth, &truths, &m1);
+            let Some(w) = s1.victims.iter().find(|w| w.id == id) else {
+                continue;
+            };
+            if let (Some(e1), Some(sg1), Some(&own)) = (w.joint_m, w.joint_sigma_m, v.own_m.get(k))
+            {
+                out.push(Alone {
+                    all: (e, s),
+                    alone: (e1, sg1),
+                    own,
+                });
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Runs one scenario end to end in memory: simulate, process, map, score.
 pub fn run_one(cfg: &TeamConfig, opt: &MapOptions) -> anyhow::Result<(TeamSim, TeamMap, Score)> {
+    let (sim, _, m, s) = run_one_full(cfg, opt)?;
+    Ok((sim, m, s))
+}
+
+/// [`run_one`], also returning the per-log runs.
+pub fn run_one_full(
+    cfg: &TeamConfig,
+    opt: &MapOptions,
+) -> anyhow::Result<(TeamSim, Vec<local::LocalRun>, TeamMap, Score)> {
     let sim = scenario::simulate(cfg);
     let logs: Vec<_> = sim
         .logs
@@ -174,7 +235,7 @@ pub fn run_one(cfg: &TeamConfig, opt: &MapOptions) -> anyhow::Result<(TeamSim, T
     let m = map::build(&runs, &starts, opt)?;
     let truths: Vec<&Session> = sim.logs.iter().map(|l| &l.1).collect();
     let s = score(&sim.truth, &truths, &m);
-    Ok((sim, m, s))
+    Ok((sim, runs, m, s))
 }
 
 /// The truth overlay of a simulated team for the plot.
@@ -293,11 +354,13 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
     let mut rows = String::new();
     let mut single = String::new();
     let mut tot = Totals::default();
+    let mut alone: Vec<Alone> = Vec::new();
     let png = args.out.with_file_name("team.png");
     for (k, s) in args.scenarios.iter().enumerate() {
         let cfg = parse(s)?;
         eprintln!("scenario {s}");
-        let (sim, m, sc) = run_one(&cfg, &opt)?;
+        let (sim, runs, m, sc) = run_one_full(&cfg, &opt)?;
+        alone.extend(leave_others_out(&sim, &runs, &m, &opt)?);
         if k == 0 {
             plot::plot(&m, Some(&overlay(&sim)), &png)?;
         }
@@ -360,9 +423,20 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
         md,
         "## A beacon localized by one rescuer only\n\n| scenario | victim | rescuer | own-map error m | joint-map error m | joint σ m |\n|---|---|---|---|---|---|\n{single}"
     );
+    let n = alone.len();
+    let avg = |f: &dyn Fn(&Alone) -> f64| mean(alone.iter().map(f).sum(), n);
     let _ = writeln!(
         md,
-        "{SINGLE}\n\n![team map of the first scenario](team.png)\n\n{PNG}\n\n## Per scenario\n{rows}\n{LIMITS}"
+        "{SINGLE}\n\nThe same question asked of every shared beacon: each victim localized by several rescuers is mapped again keeping only one rescuer's observation of it (the others' beacon edges to it removed, everything else kept), once per observing rescuer ({n} cases):\n\n| | error m | largest σ m |\n|---|---|---|\n| that rescuer's own map | {:.2} | – |\n| joint map, only that rescuer's observation of the victim | {:.2} | {:.2} |\n| joint map, all observations | {:.2} | {:.2} |\n",
+        avg(&|a| a.own),
+        avg(&|a| a.alone.0),
+        avg(&|a| a.alone.1),
+        avg(&|a| a.all.0),
+        avg(&|a| a.all.1),
+    );
+    let _ = writeln!(
+        md,
+        "![team map of the first scenario](team.png)\n\n{PNG}\n\n## Per scenario\n{rows}\n{LIMITS}"
     );
     std::fs::write(&args.out, &md).with_context(|| format!("writing {}", args.out.display()))?;
     writeln!(out, "{}", args.out.display())?;
@@ -375,4 +449,4 @@ const SINGLE: &str = "A beacon localized by a single rescuer is a leaf of the gr
 
 const PNG: &str = "In the picture: north up, east right; pale thin lines are the dead-reckoned tracks from the start fixes, bold lines the corrected tracks, grey the true tracks; light grey the covered area (±20 m strips); red dots with 2σ ellipses the joint-map victims, small circles in a rescuer's colour its own-map positions, black crosses the true victims.";
 
-const LIMITS: &str = "## Limits\n\n- Signatures: the log carries no period or carrier offset, so the period is fitted from the pulse times; the phase is not comparable (independent clocks); periods within ≈ 0.1 ms (2 × 50 ppm clock tolerance) are indistinguishable and would be merged. The simulator keeps a scenario's periods ≥ 5 ms apart, so that case is not exercised here. The estimated moment magnitude is carried per sighting (JSON `moment`) but not used to decide.\n- The dead-reckoning covariance treats the walk-long step-scale error and the compass's absolute yaw error as independent per interval; both are in truth correlated along a walk, so the dead-reckoning edges are somewhat over-confident on long straight legs.\n- One observation per (rescuer, victim): the estimator's outputs at successive pulses are not independent (it is a filter), so using more than one would count the same information twice. The estimator's error is correlated with the dead reckoning it used; the graph treats them as independent.\n- Positions are horizontal only: the yaw is magnetometer-aided and absolute, so the graph is linear and Gauss–Newton converges in one step; depth is reported as the mean of the estimates.\n- The covered area is the area within ±20 m of the corrected track (a nominal search-strip half-width), on a 1 m grid.";
+const LIMITS: &str = "## Limits\n\n- Signatures: the log carries no period or carrier offset, so the period is fitted from the pulse times; the phase is not comparable (independent clocks); periods within ≈ 0.1 ms (2 × 50 ppm clock tolerance) are indistinguishable and would be merged. The simulator keeps a scenario's periods ≥ 5 ms apart, so that case is not exercised here. The estimated moment magnitude is carried per sighting (JSON `moment`) but not used to decide.\n- A track of fewer than 4 pulses (a transmitter heard only briefly at the edge of range) gets no signature and stays a group of its own (`heard only` in the tables, counted as an association miss). No two different transmitters were merged in these scenarios.\n- χ² at the solution is below its degrees of freedom in most scenarios: the covariances (dead reckoning and estimator) are on the conservative side for these walks, so the joint σ overstates the joint error a little.\n- The dead-reckoning covariance treats the walk-long step-scale error and the compass's absolute yaw error as independent per interval; both are in truth correlated along a walk, so the dead-reckoning edges are somewhat over-confident on long straight legs.\n- One observation per (rescuer, victim): the estimator's outputs at successive pulses are not independent (it is a filter), so using more than one would count the same information twice. The estimator's error is correlated with the dead reckoning it used; the graph treats them as independent.\n- Positions are horizontal only: the yaw is magnetometer-aided and absolute, so the graph is linear and Gauss–Newton converges in one step; depth is reported as the mean of the estimates.\n- The covered area is the area within ±20 m of the corrected track (a nominal search-strip half-width), on a 1 m grid.";
