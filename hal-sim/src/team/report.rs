@@ -40,6 +40,8 @@ pub struct VictimScore {
     pub joint_sigma_m: Option<f64>,
     /// Own-map errors, one per localizing rescuer, m.
     pub own_m: Vec<f64>,
+    /// Largest over smallest moment magnitude estimated by the localizing rescuers.
+    pub moment_ratio: Option<f64>,
 }
 
 /// One team scenario scored.
@@ -72,6 +74,20 @@ fn mean_error(track: &[[f64; 3]], truth: &Session) -> f64 {
         }
     }
     if n > 0.0 { sum / n } else { f64::NAN }
+}
+
+/// Spread of the moment magnitudes the localizing rescuers estimated for `v`.
+fn moment_ratio(v: &super::map::MapVictim) -> Option<f64> {
+    let m: Vec<f64> = v
+        .seen_by
+        .iter()
+        .filter(|s| s.localized)
+        .filter_map(|s| s.moment)
+        .filter(|m| *m > 0.0)
+        .collect();
+    let lo = m.iter().copied().reduce(f64::min)?;
+    let hi = m.iter().copied().reduce(f64::max)?;
+    (m.len() > 1).then(|| hi / lo)
 }
 
 /// Scores a joint map against the truth.
@@ -148,6 +164,7 @@ pub fn score(truth: &TeamTruth, truth_logs: &[&Session], m: &TeamMap) -> Score {
                 (0.5 * (c[0] + c[2]) + (half * half + c[1] * c[1]).sqrt()).sqrt()
             }),
             own_m: v.seen_by.iter().filter_map(|s| s.own_p.map(err)).collect(),
+            moment_ratio: moment_ratio(v),
         });
     }
     let tracks = m
@@ -355,6 +372,7 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
     let mut single = String::new();
     let mut tot = Totals::default();
     let mut alone: Vec<Alone> = Vec::new();
+    let mut ratios: Vec<f64> = Vec::new();
     let png = args.out.with_file_name("team.png");
     for (k, s) in args.scenarios.iter().enumerate() {
         let cfg = parse(s)?;
@@ -365,6 +383,7 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
             plot::plot(&m, Some(&overlay(&sim)), &png)?;
         }
         rows.push_str(&scenario_section(s, &cfg, &m, &sc, &opt));
+        ratios.extend(sc.victims.iter().filter_map(|v| v.moment_ratio));
         for v in &sc.victims {
             let Some(j) = v.joint_m else { continue };
             let own = mean(v.own_m.iter().sum(), v.own_m.len());
@@ -423,6 +442,20 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
         md,
         "## A beacon localized by one rescuer only\n\n| scenario | victim | rescuer | own-map error m | joint-map error m | joint σ m |\n|---|---|---|---|---|---|\n{single}"
     );
+    ratios.sort_by(f64::total_cmp);
+    let q = |f: f64| {
+        ratios
+            .get(((ratios.len().saturating_sub(1)) as f64 * f).round() as usize)
+            .copied()
+            .unwrap_or(f64::NAN)
+    };
+    let field = format!(
+        "## Field strength as a second signature\n\nThe estimated moment magnitude of the same victim by different rescuers (largest / smallest, {} shared victims): median {:.2}, 90th percentile {:.2}, largest {:.2}. The standard's transmitters span about 10× in moment (3e-3 … 3e-2 A·m² here), so field strength separates only transmitters of clearly different power; it is reported per sighting in the JSON, not used to decide.\n",
+        ratios.len(),
+        q(0.5),
+        q(0.9),
+        q(1.0)
+    );
     let n = alone.len();
     let avg = |f: &dyn Fn(&Alone) -> f64| mean(alone.iter().map(f).sum(), n);
     let _ = writeln!(
@@ -436,7 +469,7 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
     );
     let _ = writeln!(
         md,
-        "![team map of the first scenario](team.png)\n\n{PNG}\n\n## Per scenario\n{rows}\n{LIMITS}"
+        "![team map of the first scenario](team.png)\n\n{PNG}\n\n{field}\n## Per scenario\n{rows}\n{LIMITS}"
     );
     std::fs::write(&args.out, &md).with_context(|| format!("writing {}", args.out.display()))?;
     writeln!(out, "{}", args.out.display())?;
