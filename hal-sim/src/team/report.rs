@@ -53,6 +53,8 @@ pub struct Score {
     pub tracks: Vec<(f64, f64)>,
     /// Tracks whose global id matches the truth (same transmitter ⇔ same id), of all.
     pub association: (usize, usize),
+    /// Ids holding tracks of more than one transmitter (wrong merges).
+    pub merged: usize,
     /// Eq. 5 at the solution and its degrees of freedom.
     pub chi2: (f64, i64),
 }
@@ -126,9 +128,10 @@ pub fn score(truth: &TeamTruth, truth_logs: &[&Session], m: &TeamMap) -> Score {
             })
             .map(|g| g.0)
     };
-    let (mut good, mut all) = (0, 0);
+    let (mut good, mut all, mut merged) = (0, 0, 0);
     for (id, txs) in &groups {
         let pure = txs.windows(2).all(|w| w[0] == w[1]);
+        merged += usize::from(!pure);
         for &t in txs {
             all += 1;
             good += usize::from(pure && main_id(t) == Some(*id));
@@ -177,6 +180,7 @@ pub fn score(truth: &TeamTruth, truth_logs: &[&Session], m: &TeamMap) -> Score {
         victims,
         tracks,
         association: (good, all),
+        merged,
         chi2: (m.chi2, m.dof),
     }
 }
@@ -300,6 +304,9 @@ struct Totals {
     dr: f64,
     corrected: f64,
     n_tracks: usize,
+    worse: usize,
+    assoc: (usize, usize),
+    merged: usize,
 }
 
 fn mean(sum: f64, n: usize) -> f64 {
@@ -384,6 +391,9 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
         }
         rows.push_str(&scenario_section(s, &cfg, &m, &sc, &opt));
         ratios.extend(sc.victims.iter().filter_map(|v| v.moment_ratio));
+        tot.assoc.0 += sc.association.0;
+        tot.assoc.1 += sc.association.1;
+        tot.merged += sc.merged;
         for v in &sc.victims {
             let Some(j) = v.joint_m else { continue };
             let own = mean(v.own_m.iter().sum(), v.own_m.len());
@@ -411,6 +421,7 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
             tot.dr += a;
             tot.corrected += b;
             tot.n_tracks += 1;
+            tot.worse += usize::from(b > a);
         }
     }
     let mut md = String::new();
@@ -425,7 +436,7 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
     let _ = writeln!(md, "{METHOD}");
     let _ = writeln!(
         md,
-        "## Summary ({} scenarios, {:.0} s)\n\n| quantity | value |\n|---|---|\n| victims localized by ≥ 2 rescuers: mean own-map error → joint-map error | {:.2} m → {:.2} m (n = {}) |\n| victims localized by one rescuer: own-map error → joint-map error | {:.2} m → {:.2} m (n = {}) |\n| rescuer tracks: mean Cartesian error dead-reckoned → corrected | {:.2} m → {:.2} m (n = {}) |\n",
+        "## Summary ({} scenarios, {:.0} s)\n\n| quantity | value |\n|---|---|\n| victims localized by ≥ 2 rescuers: mean own-map error → joint-map error | {:.2} m → {:.2} m (n = {}) |\n| victims localized by one rescuer: own-map error → joint-map error | {:.2} m → {:.2} m (n = {}) |\n| rescuer tracks: mean Cartesian error dead-reckoned → corrected | {:.2} m → {:.2} m (n = {}; {} worse after correction) |\n| tracks associated right across logs | {}/{} ({} wrong merges of two transmitters) |\n",
         args.scenarios.len(),
         started.elapsed().as_secs_f64(),
         mean(tot.multi_own, tot.n_multi),
@@ -437,6 +448,10 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
         mean(tot.dr, tot.n_tracks),
         mean(tot.corrected, tot.n_tracks),
         tot.n_tracks,
+        tot.worse,
+        tot.assoc.0,
+        tot.assoc.1,
+        tot.merged,
     );
     let _ = writeln!(
         md,
@@ -482,4 +497,4 @@ const SINGLE: &str = "A beacon localized by a single rescuer is a leaf of the gr
 
 const PNG: &str = "In the picture: north up, east right; pale thin lines are the dead-reckoned tracks from the start fixes, bold lines the corrected tracks, grey the true tracks; light grey the covered area (±20 m strips); red dots with 2σ ellipses the joint-map victims, small circles in a rescuer's colour its own-map positions, black crosses the true victims.";
 
-const LIMITS: &str = "## Limits\n\n- Signatures: the log carries no period or carrier offset, so the period is fitted from the pulse times; the phase is not comparable (independent clocks); periods within ≈ 0.1 ms (2 × 50 ppm clock tolerance) are indistinguishable and would be merged. The simulator keeps a scenario's periods ≥ 5 ms apart, so that case is not exercised here. The estimated moment magnitude is carried per sighting (JSON `moment`) but not used to decide.\n- A track of fewer than 4 pulses (a transmitter heard only briefly at the edge of range) gets no signature and stays a group of its own (`heard only` in the tables, counted as an association miss). No two different transmitters were merged in these scenarios.\n- χ² at the solution is below its degrees of freedom in most scenarios: the covariances (dead reckoning and estimator) are on the conservative side for these walks, so the joint σ overstates the joint error a little.\n- The dead-reckoning covariance treats the walk-long step-scale error and the compass's absolute yaw error as independent per interval; both are in truth correlated along a walk, so the dead-reckoning edges are somewhat over-confident on long straight legs.\n- One observation per (rescuer, victim): the estimator's outputs at successive pulses are not independent (it is a filter), so using more than one would count the same information twice. The estimator's error is correlated with the dead reckoning it used; the graph treats them as independent.\n- Positions are horizontal only: the yaw is magnetometer-aided and absolute, so the graph is linear and Gauss–Newton converges in one step; depth is reported as the mean of the estimates.\n- The covered area is the area within ±20 m of the corrected track (a nominal search-strip half-width), on a 1 m grid.";
+const LIMITS: &str = "## Limits\n\n- Signatures: the log carries no period or carrier offset, so the period is fitted from the pulse times; the phase is not comparable (independent clocks); periods within ≈ 0.1 ms (2 × 50 ppm clock tolerance) are indistinguishable and would be merged. The simulator keeps a scenario's periods ≥ 5 ms apart, so that case is not exercised here. The estimated moment magnitude is carried per sighting (JSON `moment`) but not used to decide.\n- A track of fewer than 4 pulses (a transmitter heard only briefly at the edge of range) gets no signature and stays a group of its own (`heard only` in the tables, counted as an association miss).\n- χ² at the solution is below its degrees of freedom in most scenarios: the covariances (dead reckoning and estimator) are on the conservative side for these walks, so the joint σ overstates the joint error a little.\n- The dead-reckoning covariance treats the walk-long step-scale error and the compass's absolute yaw error as independent per interval; both are in truth correlated along a walk, so the dead-reckoning edges are somewhat over-confident on long straight legs.\n- One observation per (rescuer, victim): the estimator's outputs at successive pulses are not independent (it is a filter), so using more than one would count the same information twice. The estimator's error is correlated with the dead reckoning it used; the graph treats them as independent.\n- Positions are horizontal only: the yaw is magnetometer-aided and absolute, so the graph is linear and Gauss–Newton converges in one step; depth is reported as the mean of the estimates.\n- The covered area is the area within ±20 m of the corrected track (a nominal search-strip half-width), on a 1 m grid.";
