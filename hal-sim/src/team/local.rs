@@ -4,7 +4,7 @@
 //! estimate relative to the receiver and its signature.
 use super::signature::{self, Signature};
 use crate::receiver_config::ReceiverConfig;
-use crate::session::{Record, Session};
+use crate::session::{Pulse, Record, Session};
 use crate::sog_replay::app_config;
 use firmware::Vec3;
 use firmware::app::Receiver;
@@ -118,6 +118,58 @@ impl Dr {
     }
 }
 
+/// One `src` track's own firmware receiver (which sees only this track's pulses, and
+/// every IMU sample) and what it found.
+struct TrackRun {
+    rx: Box<Receiver>,
+    track: Track,
+    times: Vec<f64>,
+}
+
+impl TrackRun {
+    /// Feeds pulse `p` (at `t` s on the receiver's relative clock) and keeps the estimate
+    /// with the smallest horizontal σ once the track has [`MIN_PULSES`].
+    fn pulse(&mut self, t: f32, p: &Pulse, dr_index: usize) {
+        self.times.push(p.t);
+        // A refused pulse leaves the receiver unchanged (counted by the firmware).
+        if self.rx.on_pulse(t, &v3(&p.h), None).is_err() {
+            return;
+        }
+        self.track.pulses += 1;
+        let Some(est) = self.rx.estimate() else {
+            return;
+        };
+        let obs = Observation {
+            t: p.t,
+            dr_index,
+            p: [est.p.x, est.p.y, est.p.z].map(f64::from),
+            cov: core::array::from_fn(|j| f64::from(est.cov[(j / 3, j % 3)])),
+            moment: f64::from(est.moment.norm()),
+        };
+        let better = self
+            .track
+            .best
+            .as_ref()
+            .is_none_or(|b| obs.sigma_h() <= b.sigma_h());
+        let finite = obs.p.iter().chain(&obs.cov).all(|v| v.is_finite());
+        if self.track.pulses >= MIN_PULSES && finite && better {
+            self.track.best = Some(obs);
+        }
+    }
+}
+
+impl Dr {
+    /// One IMU sample; a gap is bridged as the firmware's application does (resynchronize
+    /// and retry), other refused samples are skipped.
+    fn imu(&mut self, t: f32, acc: &Vec3, gyr: &Vec3, mag: Option<&Vec3>) {
+        if let Err(MotionError::Gap { .. }) = self.motion.on_imu_sample(t, acc, gyr, mag)
+            && self.motion.resync(t).is_ok()
+        {
+            let _ = self.motion.on_imu_sample(t, acc, gyr, mag);
+        }
+    }
+}
+
 /// Runs the firmware's dead reckoning and one estimator per `src` track over `session`;
 /// `progress(done, total)` is called now and then.
 pub fn process(
@@ -129,21 +181,20 @@ pub fn process(
     let mut labels: Vec<u32> = session.pulses().map(|p| p.src.unwrap_or(0)).collect();
     labels.sort_unstable();
     labels.dedup();
-    let mut estimators = Vec::with_capacity(labels.len());
-    for _ in &labels {
+    let mut tracks = Vec::with_capacity(labels.len());
+    for &src in &labels {
         let rx = Receiver::new(cfg).map_err(|e| anyhow::anyhow!("receiver refused: {e:?}"))?;
-        estimators.push(Box::new(rx));
+        tracks.push(TrackRun {
+            rx: Box::new(rx),
+            track: Track {
+                src,
+                pulses: 0,
+                signature: None,
+                best: None,
+            },
+            times: Vec::new(),
+        });
     }
-    let mut tracks: Vec<Track> = labels
-        .iter()
-        .map(|&src| Track {
-            src,
-            pulses: 0,
-            signature: None,
-            best: None,
-        })
-        .collect();
-    let mut times: Vec<Vec<f64>> = vec![Vec::new(); labels.len()];
     let mut dr = Dr {
         motion: Motion::new(cfg.motion),
         rot: firmware::Mat3::identity(),
@@ -161,28 +212,23 @@ pub fn process(
                 let t = (s.t - t0) as f32;
                 let mag = s.mag.as_ref().map(v3);
                 let (acc, gyr) = (v3(&s.acc), v3(&s.gyr));
-                // A gap is bridged as the firmware's application does (resynchronize and
-                // retry); other refused samples are skipped.
-                if let Err(MotionError::Gap { .. }) =
-                    dr.motion.on_imu_sample(t, &acc, &gyr, mag.as_ref())
-                    && dr.motion.resync(t).is_ok()
-                {
-                    let _ = dr.motion.on_imu_sample(t, &acc, &gyr, mag.as_ref());
-                }
-                // The first interval starts at the first sample: its translation is in
-                // that sample's body axes.
+                dr.imu(t, &acc, &gyr, mag.as_ref());
+                // The first interval starts at the first sample (its translation is in
+                // that sample's body axes); the walk's start is the node the start fix
+                // anchors.
                 if !started {
-                    dr.set_start();
                     started = true;
-                    // The walk's start: the node the start fix anchors.
-                    samples.push(DrSample {
-                        t: s.t,
-                        p: [0.0; 2],
-                        cov: [0.0; 3],
-                    });
+                    dr.set_start();
+                    if samples.is_empty() {
+                        samples.push(DrSample {
+                            t: s.t,
+                            p: [0.0; 2],
+                            cov: [0.0; 3],
+                        });
+                    }
                 }
-                for e in &mut estimators {
-                    let _ = e.on_imu(t, &acc, &gyr, mag.as_ref());
+                for tr in &mut tracks {
+                    let _ = tr.rx.on_imu(t, &acc, &gyr, mag.as_ref());
                 }
             }
             Record::Pulse(p) => {
@@ -194,32 +240,8 @@ pub fn process(
                     cov: dr.cov,
                 });
                 let k = labels.binary_search(&p.src.unwrap_or(0)).unwrap_or(0);
-                let (Some(e), Some(track), Some(ts)) =
-                    (estimators.get_mut(k), tracks.get_mut(k), times.get_mut(k))
-                else {
-                    continue;
-                };
-                ts.push(p.t);
-                if e.on_pulse(t, &v3(&p.h), None).is_err() {
-                    continue;
-                }
-                track.pulses += 1;
-                if let Some(est) = e.estimate() {
-                    let obs = Observation {
-                        t: p.t,
-                        dr_index: samples.len() - 1,
-                        p: [est.p.x, est.p.y, est.p.z].map(f64::from),
-                        cov: core::array::from_fn(|j| f64::from(est.cov[(j / 3, j % 3)])),
-                        moment: f64::from(est.moment.norm()),
-                    };
-                    let better = track
-                        .best
-                        .as_ref()
-                        .is_none_or(|b| obs.sigma_h() <= b.sigma_h());
-                    let finite = obs.p.iter().chain(&obs.cov).all(|v| v.is_finite());
-                    if track.pulses >= MIN_PULSES && finite && better {
-                        track.best = Some(obs);
-                    }
+                if let Some(tr) = tracks.get_mut(k) {
+                    tr.pulse(t, p, samples.len() - 1);
                 }
             }
             Record::Truth(_) => {}
@@ -228,9 +250,13 @@ pub fn process(
             progress(i, total);
         }
     }
-    for (track, ts) in tracks.iter_mut().zip(&times) {
-        track.signature = signature::fit(ts);
-    }
+    let tracks = tracks
+        .into_iter()
+        .map(|tr| Track {
+            signature: signature::fit(&tr.times),
+            ..tr.track
+        })
+        .collect();
     Ok(LocalRun {
         dr: samples,
         tracks,

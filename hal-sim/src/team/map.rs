@@ -129,6 +129,149 @@ pub fn build(
     build_filtered(runs, starts, opt, &|_, _| true)
 }
 
+/// The graph under construction: victims are nodes `0..n_victims`, then each rescuer's
+/// pose nodes from `base[r]` on (`nodes[r]`: their indices into the run's `dr`).
+struct Builder<'a> {
+    opt: &'a MapOptions,
+    edges: Vec<Edge>,
+    x0: Vec<[f64; 2]>,
+    nodes: Vec<Vec<usize>>,
+    base: Vec<usize>,
+}
+
+impl Builder<'_> {
+    /// Pose nodes of one rescuer, its start-fix prior and its dead-reckoning edges.
+    fn add_poses(&mut self, run: &LocalRun, f: StartFix) {
+        let must: Vec<usize> = run
+            .tracks
+            .iter()
+            .filter_map(|t| usable(t, self.opt.max_sigma_m).map(|o| o.dr_index))
+            .collect();
+        let idx = node_indices(run, self.opt.node_spacing_s, &must);
+        let b = self.x0.len();
+        for &i in &idx {
+            let p = run.dr.get(i).map_or([0.0; 2], |s| s.p);
+            self.x0.push([f.p[0] + p[0], f.p[1] + p[1]]);
+        }
+        // The start fix as a prior on the first node (the walk's start, DR offset 0).
+        if let Some(&x) = self.x0.get(b) {
+            let s2 = f.sigma_m * f.sigma_m;
+            self.edges.push(Edge {
+                from: None,
+                to: b,
+                z: x,
+                cov: [s2, 0.0, s2],
+            });
+        }
+        // Dead-reckoning edges: increments of the accumulated track and covariance (the
+        // per-interval errors are independent, so increments' covariances subtract).
+        for (k, w) in idx.windows(2).enumerate() {
+            let (Some(a), Some(c)) = (run.dr.get(w[0]), run.dr.get(w[1])) else {
+                continue;
+            };
+            let d = sub(c.cov, a.cov);
+            self.edges.push(Edge {
+                from: Some(b + k),
+                to: b + k + 1,
+                z: [c.p[0] - a.p[0], c.p[1] - a.p[1]],
+                cov: [d[0] + 1e-4, d[1], d[2] + 1e-4],
+            });
+        }
+        self.base.push(b);
+        self.nodes.push(idx);
+    }
+
+    /// Beacon edges of rescuer `r`: victim − pose = the estimator's relative position,
+    /// with its covariance (IROS 2006 eq. 18); the first one also seeds the victim's
+    /// initial guess.
+    fn add_beacons(
+        &mut self,
+        r: usize,
+        run: &LocalRun,
+        ids: &[usize],
+        keep: &dyn Fn(usize, usize) -> bool,
+    ) {
+        let (Some(&b), Some(idx)) = (self.base.get(r), self.nodes.get(r)) else {
+            return;
+        };
+        for (t, &id) in run.tracks.iter().zip(ids) {
+            let Some(o) = usable(t, self.opt.max_sigma_m).filter(|_| keep(r, id)) else {
+                continue;
+            };
+            let Ok(k) = idx.binary_search(&o.dr_index) else {
+                continue;
+            };
+            self.edges.push(Edge {
+                from: Some(b + k),
+                to: id,
+                z: [o.p[0], o.p[1]],
+                cov: [o.cov[0], o.cov[1], o.cov[4]],
+            });
+            let pose = self.x0.get(b + k).copied();
+            if let (Some(v), Some(p)) = (self.x0.get_mut(id), pose)
+                && v[0].is_nan()
+            {
+                *v = [p[0] + o.p[0], p[1] + o.p[1]];
+            }
+        }
+    }
+
+    /// Victims nobody localized are not in the graph: a pinned dummy prior keeps the
+    /// normal matrix regular (they are reported without a position). Returns which of the
+    /// first `n` nodes are localized victims.
+    fn pin_unlocalized(&mut self, n: usize) -> Vec<bool> {
+        let localized: Vec<bool> = self.x0.iter().take(n).map(|v| !v[0].is_nan()).collect();
+        for (id, ok) in localized.iter().enumerate() {
+            if !ok {
+                self.edges.push(Edge {
+                    from: None,
+                    to: id,
+                    z: [0.0; 2],
+                    cov: [1.0, 0.0, 1.0],
+                });
+                if let Some(v) = self.x0.get_mut(id) {
+                    *v = [0.0; 2];
+                }
+            }
+        }
+        localized
+    }
+}
+
+/// Every track of every run that the association gave global id `id`, with the own-map
+/// positions; also the mean estimated height and the period.
+fn sightings(
+    runs: &[LocalRun],
+    ids: &[Vec<usize>],
+    fix: &dyn Fn(usize) -> StartFix,
+    opt: &MapOptions,
+    id: usize,
+) -> (Vec<Sighting>, Option<f64>, Option<f64>) {
+    let mut seen_by = Vec::new();
+    let (mut z, mut nz, mut period) = (0.0, 0u32, None);
+    for (r, run) in runs.iter().enumerate() {
+        let f = fix(r);
+        let labels = ids.get(r).map_or(&[][..], |v| v);
+        for (t, _) in run.tracks.iter().zip(labels).filter(|(_, g)| **g == id) {
+            period = period.or(t.signature.as_ref().map(|s| s.period_s));
+            let own_p = usable(t, opt.max_sigma_m).and_then(|o| {
+                let d = run.dr.get(o.dr_index)?;
+                z += o.p[2];
+                nz += 1;
+                Some([f.p[0] + d.p[0] + o.p[0], f.p[1] + d.p[1] + o.p[1]])
+            });
+            seen_by.push(Sighting {
+                rescuer: r,
+                src: t.src,
+                localized: own_p.is_some(),
+                own_p,
+                moment: t.best.as_ref().map(|o| o.moment),
+            });
+        }
+    }
+    (seen_by, (nz > 0).then(|| z / f64::from(nz)), period)
+}
+
 /// [`build`] with only the beacon edges for which `keep(rescuer, victim id)` holds (to
 /// study a beacon seen by fewer rescuers).
 pub fn build_filtered(
@@ -143,139 +286,48 @@ pub fn build_filtered(
         .collect();
     let ids = signature::associate(&sigs, opt.clock_ppm);
     let n_victims = ids.iter().flatten().map(|&i| i + 1).max().unwrap_or(0);
+    // Without a fix, the first log defines the frame and the others float (σ 1 km).
     let fix = |r: usize| -> StartFix {
         starts.get(r).copied().flatten().unwrap_or(StartFix {
             p: [0.0; 2],
             sigma_m: if r == 0 { 0.01 } else { 1e3 },
         })
     };
-    // Node layout: victims first, then each rescuer's pose nodes.
-    let mut edges = Vec::new();
-    let mut x0: Vec<[f64; 2]> = vec![[f64::NAN; 2]; n_victims];
-    let mut nodes: Vec<Vec<usize>> = Vec::new();
-    let mut base: Vec<usize> = Vec::new();
+    let mut g = Builder {
+        opt,
+        edges: Vec::new(),
+        x0: vec![[f64::NAN; 2]; n_victims],
+        nodes: Vec::new(),
+        base: Vec::new(),
+    };
     for (r, run) in runs.iter().enumerate() {
-        let local = |t: &super::local::Track| usable(t, opt.max_sigma_m).cloned();
-        let must: Vec<usize> = run
-            .tracks
-            .iter()
-            .filter_map(|t| local(t).map(|o| o.dr_index))
-            .collect();
-        let idx = node_indices(run, opt.node_spacing_s, &must);
-        let b = x0.len();
-        let f = fix(r);
-        for &i in &idx {
-            let p = run.dr.get(i).map_or([0.0; 2], |s| s.p);
-            x0.push([f.p[0] + p[0], f.p[1] + p[1]]);
-        }
-        let s2 = f.sigma_m * f.sigma_m;
-        // The start fix as a prior on the first node (its DR offset is ~0).
-        if let Some(&i0) = idx.first() {
-            let p = run.dr.get(i0).map_or([0.0; 2], |s| s.p);
-            edges.push(Edge {
-                from: None,
-                to: b,
-                z: [f.p[0] + p[0], f.p[1] + p[1]],
-                cov: [s2, 0.0, s2],
-            });
-        }
-        // Dead-reckoning edges: increments of the accumulated track and covariance.
-        for (k, w) in idx.windows(2).enumerate() {
-            let (Some(a), Some(c)) = (run.dr.get(w[0]), run.dr.get(w[1])) else {
-                continue;
-            };
-            let d = sub(c.cov, a.cov);
-            edges.push(Edge {
-                from: Some(b + k),
-                to: b + k + 1,
-                z: [c.p[0] - a.p[0], c.p[1] - a.p[1]],
-                cov: [d[0] + 1e-4, d[1], d[2] + 1e-4],
-            });
-        }
-        // Beacon edges: victim − pose = the estimator's relative position.
-        for (t, &id) in run.tracks.iter().zip(ids.get(r).map_or(&[][..], |v| v)) {
-            let Some(o) = local(t).filter(|_| keep(r, id)) else {
-                continue;
-            };
-            let Ok(k) = idx.binary_search(&o.dr_index) else {
-                continue;
-            };
-            edges.push(Edge {
-                from: Some(b + k),
-                to: id,
-                z: [o.p[0], o.p[1]],
-                cov: [o.cov[0], o.cov[1], o.cov[4]],
-            });
-            let pose = x0.get(b + k).copied();
-            if let (Some(v), Some(p)) = (x0.get_mut(id), pose)
-                && v[0].is_nan()
-            {
-                *v = [p[0] + o.p[0], p[1] + o.p[1]];
+        g.add_poses(run, fix(r));
+        g.add_beacons(r, run, ids.get(r).map_or(&[][..], |v| v), keep);
+    }
+    let localized = g.pin_unlocalized(n_victims);
+    let sol = graph::solve(g.x0.len(), &g.edges, &g.x0)?;
+    let pinned = localized.iter().filter(|&&l| !l).count();
+    let dof = 2 * (g.edges.len() - pinned) as i64 - 2 * (g.x0.len() - pinned) as i64;
+    let mut victims: Vec<MapVictim> = (0..n_victims)
+        .map(|id| {
+            let (seen_by, z_m, period_s) = sightings(runs, &ids, &fix, opt, id);
+            let ok = localized.get(id).copied().unwrap_or(false);
+            MapVictim {
+                id,
+                p: ok.then(|| sol.x.get(id).copied()).flatten(),
+                cov: ok.then(|| sol.cov.get(id).copied()).flatten(),
+                z_m,
+                period_s,
+                seen_by,
             }
-        }
-        base.push(b);
-        nodes.push(idx);
-    }
-    // Victims nobody localized are not in the graph: give them a pinned dummy prior so the
-    // normal matrix stays regular, and report them without a position.
-    let localized: Vec<bool> = x0.iter().take(n_victims).map(|v| !v[0].is_nan()).collect();
-    for (id, ok) in localized.iter().enumerate() {
-        if !ok {
-            edges.push(Edge {
-                from: None,
-                to: id,
-                z: [0.0; 2],
-                cov: [1.0, 0.0, 1.0],
-            });
-            x0[id] = [0.0; 2];
-        }
-    }
-    let sol = graph::solve(x0.len(), &edges, &x0)?;
-    let n_loc = localized.iter().filter(|&&l| l).count();
-    let dof = 2 * (edges.len() - (n_victims - n_loc)) as i64
-        - 2 * (x0.len() - (n_victims - n_loc)) as i64;
-    let mut victims = Vec::new();
-    for id in 0..n_victims {
-        let mut seen_by = Vec::new();
-        let (mut z, mut nz, mut period) = (0.0, 0, None);
-        for (r, run) in runs.iter().enumerate() {
-            let f = fix(r);
-            for (t, &g) in run.tracks.iter().zip(ids.get(r).map_or(&[][..], |v| v)) {
-                if g != id {
-                    continue;
-                }
-                period = period.or(t.signature.as_ref().map(|s| s.period_s));
-                let obs = usable(t, opt.max_sigma_m);
-                let own_p = obs.and_then(|o| {
-                    let d = run.dr.get(o.dr_index)?;
-                    z += o.p[2];
-                    nz += 1;
-                    Some([f.p[0] + d.p[0] + o.p[0], f.p[1] + d.p[1] + o.p[1]])
-                });
-                seen_by.push(Sighting {
-                    rescuer: r,
-                    src: t.src,
-                    localized: own_p.is_some(),
-                    own_p,
-                    moment: t.best.as_ref().map(|o| o.moment),
-                });
-            }
-        }
-        let ok = localized.get(id).copied().unwrap_or(false);
-        victims.push(MapVictim {
-            id,
-            p: ok.then(|| sol.x.get(id).copied()).flatten(),
-            cov: ok.then(|| sol.cov.get(id).copied()).flatten(),
-            z_m: (nz > 0).then(|| z / f64::from(nz)),
-            period_s: period,
-            seen_by,
-        });
-    }
+        })
+        .collect();
     victims.sort_by_key(|v| v.p.is_none());
     let rescuers: Vec<MapRescuer> = runs
         .iter()
+        .zip(g.nodes.iter().zip(&g.base))
         .enumerate()
-        .map(|(r, run)| corrected(run, &nodes[r], base[r], &sol.x, &x0, fix(r)))
+        .map(|(r, (run, (idx, &b)))| corrected(run, idx, b, &sol.x, &g.x0, fix(r)))
         .collect();
     let mut map = TeamMap {
         victims,
