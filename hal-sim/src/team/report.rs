@@ -309,6 +309,45 @@ struct Totals {
     merged: usize,
 }
 
+impl Totals {
+    /// Adds scenario `name`'s score; a row per victim localized by one rescuer only goes
+    /// to `single`.
+    fn add(&mut self, name: &str, sc: &Score, single: &mut String) {
+        self.assoc.0 += sc.association.0;
+        self.assoc.1 += sc.association.1;
+        self.merged += sc.merged;
+        for v in &sc.victims {
+            let Some(j) = v.joint_m else { continue };
+            let own = mean(v.own_m.iter().sum(), v.own_m.len());
+            if let [r] = v.localized_by.as_slice() {
+                self.single_joint += j;
+                self.single_own += own;
+                self.n_single += 1;
+                let sigma = f(v.joint_sigma_m);
+                let _ = writeln!(
+                    single,
+                    "| {name} | V{} | R{r} | {own:.2} | {j:.2} | {sigma} |",
+                    v.truth
+                );
+            } else {
+                self.multi_joint += j;
+                self.multi_own += own;
+                self.n_multi += 1;
+            }
+        }
+        for (a, b) in sc
+            .tracks
+            .iter()
+            .filter(|t| t.0.is_finite() && t.1.is_finite())
+        {
+            self.dr += a;
+            self.corrected += b;
+            self.n_tracks += 1;
+            self.worse += usize::from(b > a);
+        }
+    }
+}
+
 fn mean(sum: f64, n: usize) -> f64 {
     sum / n.max(1) as f64
 }
@@ -391,38 +430,7 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
         }
         rows.push_str(&scenario_section(s, &cfg, &m, &sc, &opt));
         ratios.extend(sc.victims.iter().filter_map(|v| v.moment_ratio));
-        tot.assoc.0 += sc.association.0;
-        tot.assoc.1 += sc.association.1;
-        tot.merged += sc.merged;
-        for v in &sc.victims {
-            let Some(j) = v.joint_m else { continue };
-            let own = mean(v.own_m.iter().sum(), v.own_m.len());
-            if let [r] = v.localized_by.as_slice() {
-                tot.single_joint += j;
-                tot.single_own += own;
-                tot.n_single += 1;
-                let _ = writeln!(
-                    single,
-                    "| {s} | V{} | R{r} | {own:.2} | {j:.2} | {} |",
-                    v.truth,
-                    f(v.joint_sigma_m)
-                );
-            } else {
-                tot.multi_joint += j;
-                tot.multi_own += own;
-                tot.n_multi += 1;
-            }
-        }
-        for (a, b) in sc
-            .tracks
-            .iter()
-            .filter(|t| t.0.is_finite() && t.1.is_finite())
-        {
-            tot.dr += a;
-            tot.corrected += b;
-            tot.n_tracks += 1;
-            tot.worse += usize::from(b > a);
-        }
+        tot.add(s, &sc, &mut single);
     }
     let mut md = String::new();
     let _ = writeln!(

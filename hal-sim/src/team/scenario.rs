@@ -196,15 +196,27 @@ fn merge(imu: Vec<Imu>, pulses: Vec<Pulse>) -> Vec<Record> {
     out
 }
 
-/// Simulates rescuer `r` of the team.
-fn simulate_rescuer(
+/// A receiver's clock: `t_log = epoch_s + t (1 + rate_ppm·1e-6)`, at 10 µs resolution.
+#[derive(Debug, Clone, Copy)]
+struct Clock {
+    epoch_s: f64,
+    rate_ppm: f64,
+}
+
+impl Clock {
+    fn at(&self, t: f64) -> f64 {
+        quantize(self.epoch_s + t * (1.0 + self.rate_ppm * 1e-6), 1e5)
+    }
+}
+
+/// Rescuer `r`'s start on the start line (its lane), gait and walk to its victims.
+fn walker(
     cfg: &TeamConfig,
     r: usize,
     transmitters: &[Transmitter],
     visits: &[usize],
-) -> ((Session, Session, ReceiverConfig, StartFix), RescuerTruth) {
-    let base = 100 + 10 * r as u64;
-    let mut rng = stream(cfg.seed, base);
+    rng: &mut ChaCha8Rng,
+) -> ([f64; 2], GaitParams, Rescuer) {
     let half = 0.5 * cfg.field_m;
     let lane = cfg.field_m / cfg.rescuers as f64;
     let start = [
@@ -229,7 +241,7 @@ fn simulate_rescuer(
         segment(start, [15.0 + cfg.field_m, start[1]], &mut w);
         w
     } else {
-        route(start, &targets, &mut rng)
+        route(start, &targets, rng)
     };
     let gait = GaitParams {
         step_length_m: quantize(rng.random_range(0.50..=0.62), 1e3),
@@ -245,33 +257,29 @@ fn simulate_rescuer(
     let plan = Plan {
         start,
         start_heading_rad: quantize(
-            wrap_pi((first[1] - start[1]).atan2(first[0] - start[0]) + 0.3 * normal(&mut rng)),
+            wrap_pi((first[1] - start[1]).atan2(first[0] - start[0]) + 0.3 * normal(rng)),
             1e4,
         ),
         start_wait_s: 2.0,
         waypoints,
         end_wait_s: 3.0,
     };
-    let rescuer = Rescuer::new(&mut rng, gait.clone(), hold, &plan, 1200.0);
-    let world = World {
-        transmitters: transmitters.to_vec(),
-        rescuer,
-        earth_field_ut: earth_field_ut(48.0, 63.0).map(|x| quantize(x, 1e3)),
-    };
-    let duration = world.end_s().min(1200.0);
-    let epoch = quantize(rng.random_range(0.0..1000.0), 1e3);
-    let rate_ppm = quantize(rng.random_range(-cfg.clock_ppm..=cfg.clock_ppm), 1e2);
-    let clock = |t: f64| quantize(epoch + t * (1.0 + rate_ppm * 1e-6), 1e5);
-    let mut imu_model = ImuModel::new(cfg.sensors.imu.clone(), stream(cfg.seed, base + 1));
-    let mut pulse_model = PulseModel::new(cfg.sensors.clone(), stream(cfg.seed, base + 2));
-    let hz = cfg.sensors.imu.hz;
-    let imu: Vec<Imu> = (0..=(duration * hz).floor() as u64)
-        .map(|k| {
-            let mut s = imu_model.sample(&world, k as f64 / hz);
-            s.t = clock(s.t);
-            s
-        })
-        .collect();
+    let rescuer = Rescuer::new(rng, gait.clone(), hold, &plan, MAX_DURATION_S);
+    (start, gait, rescuer)
+}
+
+/// Longest walk, s.
+const MAX_DURATION_S: f64 = 1200.0;
+
+/// The received pulses of all transmitters up to `duration` with local `src` labels (the
+/// order in which this receiver first heard each transmitter): the pulses on the log's
+/// clock, the label map and the pulses' true times.
+fn labelled_pulses(
+    world: &World,
+    duration: f64,
+    model: &mut PulseModel,
+    clock: Clock,
+) -> (Vec<Pulse>, Vec<usize>, Vec<f64>) {
     let mut times: Vec<(f64, usize)> = Vec::new();
     for (i, tx) in world.transmitters.iter().enumerate() {
         times.extend(
@@ -281,12 +289,11 @@ fn simulate_rescuer(
         );
     }
     times.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-    // Local labels: the order in which this receiver first heard each transmitter.
     let mut src_map: Vec<usize> = Vec::new();
     let mut pulses = Vec::new();
     let mut truth_times = Vec::new();
     for (t, i) in times {
-        if let Some(mut p) = pulse_model.measure(&world, i, t) {
+        if let Some(mut p) = model.measure(world, i, t) {
             let label = match src_map.iter().position(|&x| x == i) {
                 Some(l) => l,
                 None => {
@@ -295,15 +302,24 @@ fn simulate_rescuer(
                 }
             };
             p.src = Some(label as u32);
-            p.t = clock(t);
+            p.t = clock.at(t);
             truth_times.push(t);
             pulses.push(p);
         }
     }
-    let header = Header::new(hz, world.earth_field_ut, cfg.sensors.sign_ambiguous);
-    let mut session = Session::new(header.clone());
-    session.records = merge(imu, pulses);
-    let victims: Vec<TruthVictim> = transmitters
+    (pulses, src_map, truth_times)
+}
+
+/// Truth records at 2 Hz and at every pulse (`extra` true times), on the log's clock.
+fn truth_log(
+    world: &World,
+    header: Header,
+    duration: f64,
+    extra: Vec<f64>,
+    clock: Clock,
+) -> Session {
+    let victims: Vec<TruthVictim> = world
+        .transmitters
         .iter()
         .map(|tx| TruthVictim {
             p: tx.position,
@@ -313,7 +329,7 @@ fn simulate_rescuer(
     let mut ts: Vec<f64> = (0..=(duration * 2.0) as u64)
         .map(|k| k as f64 / 2.0)
         .collect();
-    ts.extend(truth_times);
+    ts.extend(extra);
     ts.sort_by(f64::total_cmp);
     ts.dedup();
     let mut truth = Session::new(header);
@@ -322,40 +338,85 @@ fn simulate_rescuer(
         .map(|t| {
             let s = world.rescuer_state(t);
             Record::Truth(Truth {
-                t: clock(t),
+                t: clock.at(t),
                 p: [s.p.x, s.p.y, s.p.z].map(|x| quantize(x, 1e4)),
                 rpy: [s.rpy.x, s.rpy.y, wrap_pi(s.rpy.z)].map(|x| quantize(x, 1e5)),
                 victims: victims.clone(),
             })
         })
         .collect();
-    let mut rng_cal = stream(cfg.seed, base + 3);
+    truth
+}
+
+/// What the receiver is told (its calibrated step length, 2 % off) and the GNSS start fix.
+fn receiver_and_fix(
+    cfg: &TeamConfig,
+    rng: &mut ChaCha8Rng,
+    gait: &GaitParams,
+    start: [f64; 2],
+) -> (ReceiverConfig, StartFix) {
     let receiver = ReceiverConfig {
         sign_ambiguous: cfg.sensors.sign_ambiguous,
         pulse_noise: cfg.sensors.pulse.clone(),
         imu: cfg.sensors.imu.clone(),
         victim_depth_range_m: [0.0, 3.0],
         pdr: Some(Pdr {
-            step_length_m: quantize(
-                gait.step_length_m * (1.0 + 0.02 * normal(&mut rng_cal)),
-                1e3,
-            ),
+            step_length_m: quantize(gait.step_length_m * (1.0 + 0.02 * normal(rng)), 1e3),
         }),
         ..ReceiverConfig::default()
     };
     let s = cfg.start_fix_sigma_m;
     let fix = StartFix {
         p: [
-            quantize(start[0] + s * normal(&mut rng_cal), 1e2),
-            quantize(start[1] + s * normal(&mut rng_cal), 1e2),
+            quantize(start[0] + s * normal(rng), 1e2),
+            quantize(start[1] + s * normal(rng), 1e2),
         ],
         sigma_m: s,
     };
+    (receiver, fix)
+}
+
+/// Simulates rescuer `r` of the team.
+fn simulate_rescuer(
+    cfg: &TeamConfig,
+    r: usize,
+    transmitters: &[Transmitter],
+    visits: &[usize],
+) -> ((Session, Session, ReceiverConfig, StartFix), RescuerTruth) {
+    let base = 100 + 10 * r as u64;
+    let mut rng = stream(cfg.seed, base);
+    let (start, gait, rescuer) = walker(cfg, r, transmitters, visits, &mut rng);
+    let world = World {
+        transmitters: transmitters.to_vec(),
+        rescuer,
+        earth_field_ut: earth_field_ut(48.0, 63.0).map(|x| quantize(x, 1e3)),
+    };
+    let duration = world.end_s().min(MAX_DURATION_S);
+    let clock = Clock {
+        epoch_s: quantize(rng.random_range(0.0..1000.0), 1e3),
+        rate_ppm: quantize(rng.random_range(-cfg.clock_ppm..=cfg.clock_ppm), 1e2),
+    };
+    let mut imu_model = ImuModel::new(cfg.sensors.imu.clone(), stream(cfg.seed, base + 1));
+    let mut pulse_model = PulseModel::new(cfg.sensors.clone(), stream(cfg.seed, base + 2));
+    let hz = cfg.sensors.imu.hz;
+    let imu: Vec<Imu> = (0..=(duration * hz).floor() as u64)
+        .map(|k| {
+            let mut s = imu_model.sample(&world, k as f64 / hz);
+            s.t = clock.at(s.t);
+            s
+        })
+        .collect();
+    let (pulses, src_map, truth_times) = labelled_pulses(&world, duration, &mut pulse_model, clock);
+    let header = Header::new(hz, world.earth_field_ut, cfg.sensors.sign_ambiguous);
+    let mut session = Session::new(header.clone());
+    session.records = merge(imu, pulses);
+    let truth = truth_log(&world, header, duration, truth_times, clock);
+    let (receiver, fix) = receiver_and_fix(cfg, &mut stream(cfg.seed, base + 3), &gait, start);
     let rt = RescuerTruth {
         start,
         visits: visits.to_vec(),
-        epoch_s: epoch,
-        rate_ppm,
+        epoch_s: clock.epoch_s,
+        rate_ppm: clock.rate_ppm,
         src_map,
     };
     ((session, truth, receiver, fix), rt)
