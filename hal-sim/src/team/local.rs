@@ -67,11 +67,14 @@ pub struct Track {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct LocalRun {
     /// Dead-reckoned track: the first IMU sample (the start), then one sample per pulse
-    /// (of any track).
+    /// (of any track) and at least one per [`DR_STEP_S`].
     pub dr: Vec<DrSample>,
     /// The `src` tracks, ordered by label.
     pub tracks: Vec<Track>,
 }
+
+/// Longest dead-reckoning interval without a pulse, s.
+pub const DR_STEP_S: f64 = 1.0;
 
 /// Pulses a track needs before its estimate may serve as an observation.
 pub const MIN_PULSES: usize = 10;
@@ -229,6 +232,17 @@ pub fn process(
                 }
                 for tr in &mut tracks {
                     let _ = tr.rx.on_imu(t, &acc, &gyr, mag.as_ref());
+                }
+                // Long stretches without pulses are cut every second: each interval's
+                // translation is rotated by the attitude at its start, so the absolute
+                // yaw error enters per short leg (not once over a 100 m approach).
+                if samples.last().is_some_and(|l| s.t - l.t >= DR_STEP_S) {
+                    dr.step(t);
+                    samples.push(DrSample {
+                        t: s.t,
+                        p: dr.p,
+                        cov: dr.cov,
+                    });
                 }
             }
             Record::Pulse(p) => {
