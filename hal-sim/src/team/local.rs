@@ -276,3 +276,60 @@ pub fn process(
         tracks,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scenario::{Preset, ScenarioConfig, simulate};
+
+    /// A single-transmitter log (no `src`, as `simulate` writes it): one track, localized,
+    /// with a period signature equal to the transmitter's; the dead-reckoned end point is
+    /// within 3σ (of its own accumulated covariance, + 0.3 m) of the true displacement.
+    #[test]
+    fn single_transmitter_log_gives_one_track_and_a_consistent_dead_reckoning() {
+        let sim = simulate(&ScenarioConfig::new(Preset::Paper, 3));
+        let run = process(&sim.session, &sim.receiver, |_, _| {}).unwrap();
+        assert_eq!(run.tracks.len(), 1);
+        let t = &run.tracks[0];
+        assert_eq!(t.src, 0);
+        let sig = t.signature.as_ref().unwrap();
+        let period = sim.draw.transmitters[0].period_s;
+        assert!(
+            (sig.period_s - period).abs() < 4.0 * sig.period_sigma_s + 1e-4,
+            "{sig:?} vs {period}"
+        );
+        let best = t.best.as_ref().unwrap();
+        assert!(best.sigma_h() < 3.0);
+        // Dead reckoning vs truth between the first and the last sample.
+        let (first, last) = (run.dr.first().unwrap(), run.dr.last().unwrap());
+        let at = |t: f64| {
+            let r = sim
+                .truth
+                .truth()
+                .min_by(|a, b| (a.t - t).abs().total_cmp(&(b.t - t).abs()))
+                .unwrap();
+            [r.p[0], r.p[1]]
+        };
+        let (a, b) = (at(first.t), at(last.t));
+        let truth = [b[0] - a[0], b[1] - a[1]];
+        let err = (last.p[0] - truth[0]).hypot(last.p[1] - truth[1]);
+        let c = last.cov;
+        let half = 0.5 * (c[0] - c[2]);
+        let sigma = (0.5 * (c[0] + c[2]) + (half * half + c[1] * c[1]).sqrt()).sqrt();
+        assert!(
+            err <= 3.0 * sigma + 0.3,
+            "DR error {err:.2} m, σ {sigma:.2} m"
+        );
+        assert!(
+            truth[0].hypot(truth[1]) > 20.0,
+            "the walk is long enough to mean something"
+        );
+    }
+
+    #[test]
+    fn an_empty_log_gives_an_empty_run() {
+        let s = Session::new(crate::session::Header::new(100.0, [21.0, 0.0, -42.0], true));
+        let run = process(&s, &ReceiverConfig::default(), |_, _| {}).unwrap();
+        assert!(run.dr.is_empty() && run.tracks.is_empty());
+    }
+}
