@@ -24,5 +24,6 @@ pub mod sensors;
 pub mod session;
 pub mod simulate;
 pub mod sog_replay;
+pub mod team;
 pub mod transmitter;
 pub mod world;

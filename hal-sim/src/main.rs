@@ -63,6 +63,15 @@ enum Command {
     /// NEES of the application's estimate (IMU → PDR → SOGs) against the truth over
     /// seeded simulated searches (slides 002 consistency test); a markdown table.
     Consistency(hal_sim::faults::consistency::Args),
+    /// Simulate a team search (2–4 rescuers, 2–5 victims): one session log per rescuer,
+    /// their truth, receiver.json, the start fixes (starts.json) and the team truth.
+    TeamScenario(hal_sim::team::ScenarioArgs),
+    /// Join several rescuers' session logs into one map at their shared beacons (pose
+    /// graph, least squares on the Mahalanobis distance): team-map.json and team-map.png.
+    TeamMap(hal_sim::team::MapArgs),
+    /// Seeded team scenarios through team-map, scored against the truth; a markdown
+    /// report and a PNG.
+    TeamReport(hal_sim::team::report::Args),
 }
 
 fn read_log(path: &Path) -> Result<session::Session> {
@@ -109,5 +118,8 @@ fn main() -> Result<()> {
             hal_sim::baselines::report::run(&args, &mut stdout.lock())
         }
         Command::Consistency(args) => hal_sim::faults::consistency::run(&args, &mut stdout.lock()),
+        Command::TeamScenario(args) => hal_sim::team::run_scenario(&args, &mut stdout.lock()),
+        Command::TeamMap(args) => hal_sim::team::run_map(&args, &mut stdout.lock()),
+        Command::TeamReport(args) => hal_sim::team::report::run(&args, &mut stdout.lock()),
     }
 }
