@@ -251,6 +251,7 @@ mod tests {
             pulses: 5,
             t_s: 5.0,
             lift: false,
+            ..DisplayModel::default()
         }
     }
 
