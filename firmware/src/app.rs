@@ -212,6 +212,8 @@ pub struct Receiver {
     last: GuidanceOutput,
     last_outcome: Option<StepOutcome>,
     last_pulse_t: Option<f32>,
+    /// Time of the last withheld pulse.
+    last_withheld_t: Option<f32>,
     t_now: f32,
     pulses: u32,
     overlap: bool,
@@ -233,6 +235,7 @@ impl Receiver {
             last: GuidanceOutput::default(),
             last_outcome: None,
             last_pulse_t: None,
+            last_withheld_t: None,
             t_now: 0.0,
             pulses: 0,
             overlap: false,
@@ -258,6 +261,7 @@ impl Receiver {
         self.last = GuidanceOutput::default();
         self.last_outcome = None;
         self.last_pulse_t = None;
+        self.last_withheld_t = None;
         self.pulses = 0;
         self.overlap = false;
         self.stats = AppStats::default();
@@ -506,12 +510,21 @@ impl Receiver {
             PulseMeasurement::Field(h) => self.on_pulse(t, &h, p.src).map(Some),
             PulseMeasurement::Overlap
             | PulseMeasurement::Saturated
-            | PulseMeasurement::Truncated => {
-                self.overlap = true;
-                self.stats.pulses_withheld = self.stats.pulses_withheld.saturating_add(1);
-                Ok(Some(self.display_model()))
-            }
+            | PulseMeasurement::Truncated => Ok(Some(self.on_withheld(t))),
         }
+    }
+
+    /// A pulse the front end withheld at `t` (s; overlapping transmitters, clipping,
+    /// truncation): no estimator sees it; the display flags it, and the target's signal
+    /// does not time out meanwhile (its pulses are likely among the withheld). Returns
+    /// the display.
+    pub fn on_withheld(&mut self, t: f32) -> DisplayModel {
+        if t.is_finite() {
+            self.last_withheld_t = Some(self.last_withheld_t.map_or(t, |w| w.max(t)));
+        }
+        self.overlap = true;
+        self.stats.pulses_withheld = self.stats.pulses_withheld.saturating_add(1);
+        self.display_model()
     }
 
     /// The display now: the last pulse's guidance, with the arrow turned by the device's
@@ -521,7 +534,11 @@ impl Receiver {
         let g = &self.last;
         let yaw = self.motion.attitude().0.z;
         // The target's own pulses count: another victim's do not guide to this one.
-        let target_t = self.target.and_then(|i| self.bank.get(i)).map(|v| v.last_t());
+        // Withheld (overlapping) pulses keep the target alive: its own may be among them.
+        let target_t = self
+            .target
+            .and_then(|i| self.bank.get(i))
+            .map(|v| v.last_t().max(self.last_withheld_t.unwrap_or(f32::MIN)));
         let timed_out = target_t.is_none_or(|t| self.t_now - t > self.cfg.signal_timeout_s);
         let (status, arrow_deg) = if timed_out && g.status != Status::Probe {
             (Status::NoSignal, None)

@@ -56,6 +56,10 @@ enum Command {
     /// receiver with and without step-length calibration and the classical directional
     /// search, steps and probe-point errors against the ideal walk; a markdown report.
     RescueReport(hal_sim::rescue_report::Args),
+    /// Seeded multi-victim rescues (2–4 victims, close pairs, long pulse overlaps) with
+    /// marking: victims found, per-victim error, time to find all, wrong-victim marks;
+    /// a markdown report.
+    MultiReport(hal_sim::multi::Args),
 }
 
 fn read_log(path: &Path) -> Result<session::Session> {
@@ -98,5 +102,6 @@ fn main() -> Result<()> {
         Command::Demo(args) => demo::run(&args, &mut stdout.lock()),
         Command::SensingReport(args) => hal_sim::sensing_report::run(&args, &mut stdout.lock()),
         Command::RescueReport(args) => hal_sim::rescue_report::run(&args, &mut stdout.lock()),
+        Command::MultiReport(args) => hal_sim::multi::report(&args, &mut stdout.lock()),
     }
 }
