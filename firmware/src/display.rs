@@ -233,8 +233,13 @@ where
                 .into_styled(PrimitiveStyle::with_fill(bg))
                 .draw(target)?;
         }
-        Text::with_baseline(&glyph, at, MonoTextStyle::new(&FONT_6X10, fg), Baseline::Top)
-            .draw(target)?;
+        Text::with_baseline(
+            &glyph,
+            at,
+            MonoTextStyle::new(&FONT_6X10, fg),
+            Baseline::Top,
+        )
+        .draw(target)?;
     }
     Ok(())
 }

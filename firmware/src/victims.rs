@@ -22,11 +22,11 @@
 //! of 224, against 240 for the former single filter (see `hal-sim/reports/multi.md` for
 //! the single-victim accuracy at this capacity).
 
+use crate::Vec3;
 use crate::estimate::{
     Attitude, Displacement, EstimateError, Estimator, Pulse, SogConfig, SogFilter, StepReport,
 };
 use crate::frame::{Rpy, compose_rpy, rotation_from_rpy, rotation_partials};
-use crate::Vec3;
 use nalgebra::SMatrix;
 
 /// Victims followed at once: one per front-end track.
@@ -273,7 +273,10 @@ impl VictimBank {
         let mut pend = [Pending::zero(); MAX_VICTIMS];
         for (p, v) in pend.iter_mut().zip(self.slots.iter()) {
             if v.active {
-                *p = v.pending.then(d, distance_m).ok_or(EstimateError::OutOfRange)?;
+                *p = v
+                    .pending
+                    .then(d, distance_m)
+                    .ok_or(EstimateError::OutOfRange)?;
             }
         }
         let own = pend.get(i).copied().ok_or(EstimateError::InvalidConfig)?;
@@ -449,15 +452,27 @@ mod tests {
         let b = disp([0.8, 0.4, -0.02], [-0.03, 0.1, -0.4], 0.2, 0.05);
         let c = compose(&a, &b).unwrap();
         let a64: [f64; 6] = core::array::from_fn(|i| {
-            f64::from(if i < 3 { a.translation[i] } else { a.rotation[i - 3] })
+            f64::from(if i < 3 {
+                a.translation[i]
+            } else {
+                a.rotation[i - 3]
+            })
         });
         let b64: [f64; 6] = core::array::from_fn(|i| {
-            f64::from(if i < 3 { b.translation[i] } else { b.rotation[i - 3] })
+            f64::from(if i < 3 {
+                b.translation[i]
+            } else {
+                b.rotation[i - 3]
+            })
         });
         let m = compose_mean_f64(&a64, &b64);
-        for i in 0..6 {
-            let got = f64::from(if i < 3 { c.translation[i] } else { c.rotation[i - 3] });
-            assert!((got - m[i]).abs() < 1e-5, "mean {i}: {got} vs {}", m[i]);
+        for (i, want) in m.iter().enumerate() {
+            let got = f64::from(if i < 3 {
+                c.translation[i]
+            } else {
+                c.rotation[i - 3]
+            });
+            assert!((got - want).abs() < 1e-5, "mean {i}: {got} vs {want}");
         }
         // Covariance: finite-difference Jacobians of the f64 composition.
         let h = 1e-6;
@@ -493,7 +508,12 @@ mod tests {
 
     #[test]
     fn zero_is_the_identity_and_absolute_parts_rotate() {
-        let mut a = disp([1.0, 2.0, 0.0], [0.0, 0.0, core::f32::consts::FRAC_PI_2], 0.1, 0.02);
+        let mut a = disp(
+            [1.0, 2.0, 0.0],
+            [0.0, 0.0, core::f32::consts::FRAC_PI_2],
+            0.1,
+            0.02,
+        );
         a.absolute = Vec3::new(0.0, 0.0, 0.3);
         let z = Displacement::zero();
         let left = compose(&z, &a).unwrap();

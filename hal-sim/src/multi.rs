@@ -26,8 +26,8 @@
 //! a **wrong-victim mark** (a duplicate of a found victim, or nothing there).
 use crate::accuracy::stats;
 use crate::closed_loop::{
-    ClosedLoopConfig, DT, HOLD_HEIGHT_M, HOLD_OFFSET_M, Person, Pose, Seen, StepPlan, act,
-    gauss, imu_sample,
+    ClosedLoopConfig, DT, HOLD_HEIGHT_M, HOLD_OFFSET_M, Person, Pose, Seen, StepPlan, act, gauss,
+    imu_sample,
 };
 use crate::physics::{V3, rotation_from_rpy};
 use crate::receiver_config::ReceiverConfig;
@@ -224,7 +224,11 @@ fn draw_scene(cfg: &MultiConfig, rng: &mut ChaCha8Rng, sigma_bkg: f64) -> Scene 
             1 if cfg.layout.close() => (rng.random_range(2.0..=5.0), rng.random_range(-PI..PI)),
             _ => (rng.random_range(8.0..=25.0), rng.random_range(-PI..PI)),
         };
-        let p = [centre[0] + r * b.cos(), centre[1] + r * b.sin(), -depth(rng)];
+        let p = [
+            centre[0] + r * b.cos(),
+            centre[1] + r * b.sin(),
+            -depth(rng),
+        ];
         let mut tx = Transmitter::random(rng, &spec, p);
         if i == 1
             && cfg.layout.overlap()
@@ -238,7 +242,11 @@ fn draw_scene(cfg: &MultiConfig, rng: &mut ChaCha8Rng, sigma_bkg: f64) -> Scene 
             // Leave the carriers apart enough for the tracker (its gate is 15 Hz).
             let df = rng.random_range(20.0..=60.0) * if rng.random::<bool>() { 1.0 } else { -1.0 };
             let f0 = first.carrier_hz - CARRIER_HZ;
-            let f1 = if (f0 + df).abs() <= 80.0 { f0 + df } else { f0 - df };
+            let f1 = if (f0 + df).abs() <= 80.0 {
+                f0 + df
+            } else {
+                f0 - df
+            };
             tx.carrier_hz = CARRIER_HZ + f1;
         }
         txs.push(tx);
@@ -389,8 +397,7 @@ pub fn run_with(
             tx.field_at(&p1.p)
                 .filter(|h| h.norm() >= 3.0 * noise.sigma_bkg_a_per_m)
         };
-        for i in 0..sc.txs.len() {
-            let tx = &sc.txs[i];
+        for (i, tx) in sc.txs.iter().enumerate() {
             let start = tx.phase_s + tally[i].next as f64 * tx.period_s;
             let centre = start + 0.5 * tx.on_time_s;
             if centre > p1.t + 0.5 * DT {
@@ -693,7 +700,11 @@ pub fn layout_report(layout: Layout, runs: &[MultiOutcome]) -> String {
         .sum();
     let all = runs.iter().filter(|r| r.all_found()).count();
     let wrong: usize = runs.iter().map(MultiOutcome::wrong_marks).sum();
-    let _ = writeln!(s, "### {} ({n} rescues, {victims} victims)\n", layout.title());
+    let _ = writeln!(
+        s,
+        "### {} ({n} rescues, {victims} victims)\n",
+        layout.title()
+    );
     let _ = writeln!(
         s,
         "Victims found: **{found} / {victims} ({:.1} %)**; rescues with every victim found: \
@@ -821,8 +832,51 @@ fn summary(all: &[MultiOutcome]) -> String {
         .map(|r| r.victims.iter().filter(|v| v.found).count())
         .sum();
     let all_n = all.iter().filter(|r| r.all_found()).count();
-    let med = stats(all.iter().flat_map(|r| r.victims.iter().map(|v| v.error_h_m)));
+    let med = stats(
+        all.iter()
+            .flat_map(|r| r.victims.iter().map(|v| v.error_h_m)),
+    );
     let _ = writeln!(s, "### All layouts\n");
+    let failed: Vec<&MultiOutcome> = all.iter().filter(|r| !r.all_found()).collect();
+    let churn = |r: &&&MultiOutcome| r.other_source > 0 || r.victims.iter().any(|v| v.ids > 1);
+    let timed_out = |r: &&&MultiOutcome| r.end_t >= max_time_s(r.victims.len()) - 1.0;
+    let n_churn = failed.iter().filter(churn).count();
+    let n_churn_to = failed.iter().filter(churn).filter(timed_out).count();
+    let n_clean_to = failed
+        .iter()
+        .filter(|r| !churn(r))
+        .filter(timed_out)
+        .count();
+    let n_other = failed.len() - n_churn - n_clean_to;
+    let _ = writeln!(
+        s,
+        "Rescues with a victim missed: {} — {n_churn} with tracker id churn (a victim's \
+         pulses under several ids, or more tracks than the list holds; {n_churn_to} of them \
+         ran out of time), {n_clean_to} with clean ids that ran out of time (the fine search \
+         on some victim did not reach \"probe here\" within the run, see below), \
+         {n_other} ended believing every listed victim marked.\n",
+        failed.len()
+    );
+    let share = 100.0 * found as f64 / victims.max(1) as f64;
+    let median = med.map_or(f64::NAN, |m| m[2]);
+    let _ = writeln!(
+        s,
+        "**Targets** (every victim found in ≥ 98 % of runs; per-victim median error ≤ 0.15 m): \
+         victims found {share:.1} % — **{}**; per-victim median error {median:.3} m — **{}**. \
+         The table by number of victims shows where: the share withheld as overlapping grows \
+         with every transmitter added (each pulse overlaps another one's with probability \
+         ≈ Σ (on-times) / period), so with 3–4 victims a third to a half of all pulses never \
+         reach an estimator; the tracker, fed fewer and irregular pulses, more often \
+         splits a transmitter into several ids (which the list then holds as separate \
+         victims, up to its capacity); and a victim searched after others is approached \
+         with a mixture that has lived through the other searches, whose fine search was \
+         seen to stall at σ_h ≈ 0.2–0.3 m (the same with 240 components per victim), so \
+         the run's time limit ends it. Not done: using the clean part of a partially \
+         overlapped pulse in the front end, and re-associating a new track with a listed \
+         victim by its estimate.\n",
+        if share >= 98.0 { "met" } else { "missed" },
+        if median <= 0.15 { "met" } else { "missed" },
+    );
     let _ = writeln!(
         s,
         "Victims found {found} / {victims} ({:.1} %), rescues with all found {all_n} / {} \
