@@ -5,8 +5,17 @@
 //! [`Receiver`] is hardware-free: it takes samples and returns values. The board binary
 //! and `hal-sim` drive this same type; neither re-implements any of it.
 //!
+//! # Several victims
+//! Each transmitter the front end separates (`src`) gets its own SOGs mixture in a
+//! [`VictimBank`] (see [`crate::victims`]); a pulse updates only its victim's mixture.
+//! The guidance follows one *target*: the nearest unmarked victim (switching only when
+//! another is clearly nearer, so the arrow does not flap). [`Receiver::mark`] flags the
+//! target as found and moves on to the next; marked victims stay in the list
+//! ([`DisplayModel::list`]).
+//!
 //! # Memory: keep one instance, never move it
-//! The SOGs filter is ≈ 63 KB ([`crate::estimate::SOG_CAPACITY`] components), so a
+//! The victim bank is ≈ 60 KB ([`crate::victims::MAX_VICTIMS`] mixtures of
+//! [`crate::victims::VICTIM_CAPACITY`] components), so a
 //! [`Receiver`] must not be passed by value or copied around on the board (the stack is
 //! far smaller). The board keeps exactly one in a `static` in `.ccmram` (a `NOLOAD`
 //! section that the runtime does not zero: its owner initializes it):
@@ -31,7 +40,7 @@ use core::mem::MaybeUninit;
 
 use crate::Vec3;
 use crate::estimate::{
-    self, Attitude, DefaultSog, EstimateError, Estimator, SogConfig, StepOutcome, VictimEstimate,
+    self, Attitude, EstimateError, Estimator, SogConfig, StepOutcome, VictimEstimate,
 };
 use crate::frame::rotation_from_rpy;
 use crate::frontend::{Frontend, FrontendError, PulseMeasurement};
@@ -40,6 +49,13 @@ use crate::guidance::{
     to_degrees_wrapped,
 };
 use crate::motion::{Motion, MotionConfig, MotionError};
+use crate::victims::{MAX_VICTIMS, VictimBank, VictimSog};
+
+/// The target switches to another unmarked victim only when that one is nearer than this
+/// fraction of the target's horizontal distance...
+const SWITCH_RATIO: f32 = 0.6;
+/// ...and the target is farther than this (m): never in its fine search.
+const SWITCH_MIN_M: f32 = 8.0;
 
 /// Why an input was refused (the receiver's state is then unchanged).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -52,6 +68,8 @@ pub enum AppError {
     Frontend(FrontendError),
     /// A time or vector was NaN or infinite.
     NonFinite,
+    /// Mark pressed with no victim being guided to.
+    NoTarget,
 }
 
 impl From<MotionError> for AppError {
@@ -141,6 +159,28 @@ pub struct DisplayModel {
     /// ~2 s (an absolute vertical displacement that pins the depth); steps are not
     /// counted meanwhile.
     pub lift: bool,
+    /// The victim list, by list number (slot); `None`: free slot.
+    pub list: [Option<VictimRow>; MAX_VICTIMS],
+    /// List number (1-based) of the victim the guidance leads to.
+    pub target: Option<u8>,
+    /// Victims marked as found.
+    pub found: u8,
+}
+
+/// One line of the victim list.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct VictimRow {
+    /// List number, 1-based.
+    pub number: u8,
+    /// Horizontal distance to the victim's estimate now, m (`None` before its mixture
+    /// is initialized).
+    pub distance_m: Option<f32>,
+    /// Direction to it relative to the device's heading, degrees, positive left.
+    pub arrow_deg: Option<f32>,
+    /// Marked as found.
+    pub marked: bool,
+    /// The guidance leads to this one.
+    pub target: bool,
 }
 
 /// Counters of refused or skipped inputs.
@@ -154,7 +194,7 @@ pub struct AppStats {
     pub pulses_refused: u32,
     /// Pulses withheld by the front end (overlap, clipping, truncation).
     pub pulses_withheld: u32,
-    /// Pulses of other transmitters than the tracked one (left to the multi-victim search).
+    /// Pulses of transmitters that found the victim list full.
     pub other_source: u32,
     /// Mixture re-initializations.
     pub reinitializations: u32,
@@ -163,19 +203,19 @@ pub struct AppStats {
 /// The receiver application (see the module docs for how the board stores it).
 #[derive(Debug, Clone)]
 pub struct Receiver {
-    filter: DefaultSog,
+    bank: VictimBank,
+    /// Slot of the victim the guidance leads to.
+    target: Option<usize>,
     motion: Motion,
     guidance: Guidance,
     cfg: AppConfig,
     last: GuidanceOutput,
     last_outcome: Option<StepOutcome>,
     last_pulse_t: Option<f32>,
+    /// Time of the last withheld pulse.
+    last_withheld_t: Option<f32>,
     t_now: f32,
     pulses: u32,
-    /// Bit i: front-end source i has been heard.
-    sources: u8,
-    /// The source the estimator tracks (the first one heard).
-    tracked: Option<u8>,
     overlap: bool,
     stats: AppStats,
     /// Time of the front end's first sample on the IMU clock, s.
@@ -187,17 +227,17 @@ impl Receiver {
     /// the configuration. On the board use [`Receiver::emplace`] instead (no 63 KB move).
     pub fn new(cfg: AppConfig) -> Result<Self, AppError> {
         Ok(Self {
-            filter: DefaultSog::new(cfg.sog)?,
+            bank: VictimBank::new(cfg.sog)?,
+            target: None,
             motion: Motion::new(cfg.motion),
             guidance: Guidance::new(cfg.guidance),
             cfg,
             last: GuidanceOutput::default(),
             last_outcome: None,
             last_pulse_t: None,
+            last_withheld_t: None,
             t_now: 0.0,
             pulses: 0,
-            sources: 0,
-            tracked: None,
             overlap: false,
             stats: AppStats::default(),
             adc_epoch_s: 0.0,
@@ -214,15 +254,15 @@ impl Receiver {
 
     /// Starts a new search with the same configuration.
     pub fn reset(&mut self) {
-        self.filter.reset();
+        self.bank.reset();
+        self.target = None;
         self.motion = Motion::new(self.cfg.motion);
         self.guidance.reset();
         self.last = GuidanceOutput::default();
         self.last_outcome = None;
         self.last_pulse_t = None;
+        self.last_withheld_t = None;
         self.pulses = 0;
-        self.sources = 0;
-        self.tracked = None;
         self.overlap = false;
         self.stats = AppStats::default();
     }
@@ -232,9 +272,20 @@ impl Receiver {
         &self.cfg
     }
 
-    /// The SOGs filter (read-only, e.g. to plot its components).
-    pub fn filter(&self) -> &DefaultSog {
-        &self.filter
+    /// The target victim's SOGs filter (the first slot's without a target), read-only,
+    /// e.g. to plot its components.
+    pub fn filter(&self) -> &VictimSog {
+        self.bank.filter(self.target.unwrap_or(0))
+    }
+
+    /// Every victim's mixture and list state.
+    pub fn victims(&self) -> &VictimBank {
+        &self.bank
+    }
+
+    /// Slot (list number − 1) of the victim the guidance leads to.
+    pub fn target(&self) -> Option<usize> {
+        self.target
     }
 
     /// The motion pipeline (read-only).
@@ -242,9 +293,61 @@ impl Receiver {
         &self.motion
     }
 
-    /// The estimator's current belief, or `None` before initialization.
+    /// The target victim's current belief, or `None` before initialization.
     pub fn estimate(&self) -> Option<VictimEstimate> {
-        self.filter.estimate()
+        self.filter().estimate()
+    }
+
+    /// The rescuer marks the target victim as found: the guidance moves on to the nearest
+    /// unmarked victim. Returns the marked victim's list number; `NoTarget` (nothing
+    /// changed) when no victim is being guided to.
+    pub fn mark(&mut self) -> Result<u8, AppError> {
+        let i = self.target.ok_or(AppError::NoTarget)?;
+        if !self.bank.mark(i) {
+            return Err(AppError::NoTarget);
+        }
+        self.set_target(None);
+        self.select_target();
+        Ok(u8::try_from(i).unwrap_or(u8::MAX).saturating_add(1))
+    }
+
+    /// Changes the target; a new target starts a new search control.
+    fn set_target(&mut self, target: Option<usize>) {
+        if target != self.target {
+            self.target = target;
+            self.guidance.reset();
+            self.last = GuidanceOutput::default();
+            self.motion.set_lift_mode(false);
+        }
+    }
+
+    /// Keeps the target unless it was marked or dropped, or another unmarked victim is
+    /// much nearer and the target is not close (hysteresis: the arrow must not flap
+    /// between two victims at similar distances).
+    fn select_target(&mut self) {
+        let current = self
+            .target
+            .and_then(|i| self.bank.get(i).map(|v| (i, v)))
+            .filter(|(_, v)| !v.marked());
+        let nearest = self.bank.nearest_unmarked();
+        let next = match (current, nearest) {
+            (None, n) => n.map(|n| n.0),
+            (Some((c, v)), Some((n, dn))) if n != c => match v.position_now() {
+                Some(p) => {
+                    let dc = p.xy().norm();
+                    if dc > SWITCH_MIN_M && dn < SWITCH_RATIO * dc {
+                        Some(n)
+                    } else {
+                        Some(c)
+                    }
+                }
+                None => Some(n),
+            },
+            (Some((c, _)), _) => Some(c),
+        };
+        if next.is_some() || current.is_none() {
+            self.set_target(next);
+        }
     }
 
     /// The search control's answer to the last pulse.
@@ -305,9 +408,11 @@ impl Receiver {
     }
 
     /// One received pulse at `t` (s, the IMU's clock): the field vector in the body frame
-    /// (A/m, overall sign arbitrary) and the front end's source attribution. Pulses of a
-    /// source other than the first one heard are counted but not estimated (multi-victim
-    /// search is a later step). Returns the new display.
+    /// (A/m, overall sign arbitrary) and the front end's source attribution (`None`: a
+    /// single transmitter). The pulse updates its own victim's mixture (a new victim gets
+    /// a free slot; when the list is full the pulse is counted in
+    /// [`AppStats::other_source`]); the guidance follows the target victim. Returns the
+    /// new display.
     pub fn on_pulse(
         &mut self,
         t: f32,
@@ -318,14 +423,10 @@ impl Receiver {
             self.stats.pulses_refused = self.stats.pulses_refused.saturating_add(1);
             return Err(AppError::NonFinite);
         }
-        let src_bit = src.map_or(1, |s| 1u8.checked_shl(u32::from(s)).unwrap_or(0x80));
-        if let (Some(s), Some(tracked)) = (src, self.tracked)
-            && s != tracked
-        {
-            self.sources |= src_bit;
+        let Some(slot) = self.bank.slot_for(src, t) else {
             self.stats.other_source = self.stats.other_source.saturating_add(1);
             return Ok(self.display_model());
-        }
+        };
         // Work on a copy of the motion state: the displacement is only consumed when the
         // estimator accepts the pulse.
         let mut motion = self.motion.clone();
@@ -340,7 +441,10 @@ impl Receiver {
         let (rpy, cov) = motion.attitude();
         let attitude = Attitude { rpy, cov };
         let pulse = estimate::Pulse { h: *h_body, t };
-        let report = match self.filter.step(&displacement, &attitude, &pulse) {
+        let stepped = self
+            .bank
+            .step(slot, src, &displacement, d.distance_m, &attitude, &pulse);
+        let (report, own) = match stepped {
             Ok(r) => r,
             Err(e) => {
                 self.stats.pulses_refused = self.stats.pulses_refused.saturating_add(1);
@@ -348,8 +452,6 @@ impl Receiver {
             }
         };
         self.motion = motion;
-        self.tracked = self.tracked.or(src);
-        self.sources |= src_bit;
         self.overlap = false;
         self.pulses = self.pulses.saturating_add(1);
         self.last_pulse_t = Some(t);
@@ -359,16 +461,27 @@ impl Receiver {
         if reinitialized {
             self.stats.reinitializations = self.stats.reinitializations.saturating_add(1);
         }
-        // The pulse's field in G_k for the flux line: h_G = R_GR(rpy) h_R.
-        let h_g = rotation_from_rpy(&rpy) * h_body;
-        self.last = self.guidance.update(&GuidanceInput {
-            h_g: Some(h_g),
-            walked_m: d.distance_m,
-            yaw: rpy.z,
-            estimate: self.filter.estimate(),
-            reinitialized,
-        });
-        self.motion.set_lift_mode(self.last.lift);
+        self.bank.drop_lost(t);
+        if self.target.is_some_and(|i| self.bank.get(i).is_none()) {
+            self.set_target(None);
+        }
+        if self.target.is_none() && self.bank.get(slot).is_some_and(|v| !v.marked()) {
+            // The first victim heard leads until a nearer one is localized.
+            self.set_target(Some(slot));
+        }
+        self.select_target();
+        if self.target == Some(slot) {
+            // The pulse's field in G_k for the flux line: h_G = R_GR(rpy) h_R.
+            let h_g = rotation_from_rpy(&rpy) * h_body;
+            self.last = self.guidance.update(&GuidanceInput {
+                h_g: Some(h_g),
+                walked_m: own.distance_m,
+                yaw: rpy.z,
+                estimate: self.bank.filter(slot).estimate(),
+                reinitialized,
+            });
+            self.motion.set_lift_mode(self.last.lift);
+        }
         Ok(self.display_model())
     }
 
@@ -400,14 +513,18 @@ impl Receiver {
             PulseMeasurement::Field(h) => self.on_pulse(t, &h, p.src).map(Some),
             PulseMeasurement::Overlap
             | PulseMeasurement::Saturated
-            | PulseMeasurement::Truncated => Ok(Some(self.on_withheld_pulse())),
+            | PulseMeasurement::Truncated => Ok(Some(self.on_withheld(t))),
         }
     }
 
-    /// A pulse the front end withheld (overlap, clipping, truncation): flags it on the
-    /// display ([`DisplayModel::overlap`]) until the next field pulse and counts it.
-    /// For callers that run the front end themselves (the board logs each pulse first).
-    pub fn on_withheld_pulse(&mut self) -> DisplayModel {
+    /// A pulse the front end withheld at `t` (s; overlapping transmitters, clipping,
+    /// truncation): no estimator sees it; the display flags it, and the target's signal
+    /// does not time out meanwhile (its pulses are likely among the withheld). Returns
+    /// the display.
+    pub fn on_withheld(&mut self, t: f32) -> DisplayModel {
+        if t.is_finite() {
+            self.last_withheld_t = Some(self.last_withheld_t.map_or(t, |w| w.max(t)));
+        }
         self.overlap = true;
         self.stats.pulses_withheld = self.stats.pulses_withheld.saturating_add(1);
         self.display_model()
@@ -419,9 +536,13 @@ impl Receiver {
     pub fn display_model(&self) -> DisplayModel {
         let g = &self.last;
         let yaw = self.motion.attitude().0.z;
-        let timed_out = self
-            .last_pulse_t
-            .is_none_or(|t| self.t_now - t > self.cfg.signal_timeout_s);
+        // The target's own pulses count: another victim's do not guide to this one.
+        // Withheld (overlapping) pulses keep the target alive: its own may be among them.
+        let target_t = self
+            .target
+            .and_then(|i| self.bank.get(i))
+            .map(|v| v.last_t().max(self.last_withheld_t.unwrap_or(f32::MIN)));
+        let timed_out = target_t.is_none_or(|t| self.t_now - t > self.cfg.signal_timeout_s);
         let (status, arrow_deg) = if timed_out && g.status != Status::Probe {
             (Status::NoSignal, None)
         } else {
@@ -440,12 +561,39 @@ impl Receiver {
             depth_m: g.depth_m,
             walk_m: g.walk_m,
             uncertainty_m: g.sigma_h_m,
-            victims: self.sources.count_ones() as u8,
+            victims: u8::try_from(self.bank.len()).unwrap_or(u8::MAX),
             overlap: self.overlap,
             pulses: self.pulses,
             t_s: self.last_pulse_t.unwrap_or(0.0),
             lift: g.lift && !timed_out,
+            list: self.victim_list(yaw),
+            target: self
+                .target
+                .map(|i| u8::try_from(i).unwrap_or(u8::MAX).saturating_add(1)),
+            found: u8::try_from(self.bank.active().filter(|(_, v)| v.marked()).count())
+                .unwrap_or(u8::MAX),
         }
+    }
+
+    /// The victim list now: distance and direction to each victim's estimate.
+    fn victim_list(&self, yaw: f32) -> [Option<VictimRow>; MAX_VICTIMS] {
+        let mut list = [None; MAX_VICTIMS];
+        for (i, v) in self.bank.active() {
+            let p = v.position_now();
+            let row = VictimRow {
+                number: u8::try_from(i).unwrap_or(u8::MAX).saturating_add(1),
+                distance_m: p.map(|p| p.xy().norm()),
+                arrow_deg: p
+                    .map(|p| to_degrees_wrapped(relative_arrow(libm::atan2f(p.y, p.x), yaw)))
+                    .filter(|a| a.is_finite()),
+                marked: v.marked(),
+                target: self.target == Some(i),
+            };
+            if let Some(slot) = list.get_mut(i) {
+                *slot = Some(row);
+            }
+        }
+        list
     }
 }
 
@@ -476,7 +624,7 @@ mod tests {
     }
 
     #[test]
-    fn fits_in_the_core_coupled_ram() {
+    fn fits_in_the_core_coupled_ram_with_four_victims() {
         let bytes = core::mem::size_of::<Receiver>();
         assert!(bytes <= 64 * 1024, "Receiver is {bytes} bytes");
     }
@@ -560,14 +708,71 @@ mod tests {
         assert_eq!(rx.display_model().status, Status::NoSignal);
     }
 
+    /// A pulse of the dipole `m` at `p` (W, relative to the level receiver facing north).
+    fn pulse_from(p: [f32; 3], m: [f32; 3]) -> Vec3 {
+        crate::dipole::field(&(-Vec3::from(p)), &Vec3::from(m)).unwrap()
+    }
+
     #[test]
-    fn other_sources_are_counted_not_estimated() {
+    fn each_victim_has_its_own_mixture_and_marking_moves_on() {
         let mut rx = Receiver::new(config()).unwrap();
-        let t = level_imu(&mut rx, 0.0, 20);
-        let h = Vec3::new(1e-6, 2e-7, -3e-7);
-        rx.on_pulse(t, &h, Some(0)).unwrap();
-        let d = rx.on_pulse(t + 0.3, &h, Some(2)).unwrap();
-        assert_eq!((d.victims, d.pulses), (2, 1));
+        let mut t = level_imu(&mut rx, 0.0, 20);
+        let near = pulse_from([8.0, 3.0, -2.0], [0.02, 0.0, 0.0]);
+        let far = pulse_from([-25.0, 10.0, -2.0], [0.0, 0.02, 0.0]);
+        let d = rx.on_pulse(t, &far, Some(3)).unwrap();
+        assert_eq!((d.victims, d.target), (1, Some(1)));
+        for _ in 0..6 {
+            t = level_imu(&mut rx, t, 45);
+            let before = format!("{:?}", rx.victims().filter(0));
+            rx.on_pulse(t, &near, Some(1)).unwrap();
+            // A pulse of victim 2 leaves victim 1's mixture alone.
+            assert_eq!(before, format!("{:?}", rx.victims().filter(0)));
+            t = level_imu(&mut rx, t, 50);
+            rx.on_pulse(t, &far, Some(3)).unwrap();
+        }
+        let d = rx.display_model();
+        assert_eq!((d.victims, d.found, d.pulses), (2, 0, 13));
+        assert_eq!(rx.victims().get(0).unwrap().pulses(), 7);
+        assert_eq!(rx.victims().get(1).unwrap().pulses(), 6);
+        let rows: Vec<VictimRow> = d.list.iter().flatten().copied().collect();
+        assert_eq!(rows.len(), 2);
+        assert!(rows.iter().all(|r| r.distance_m.is_some() && !r.marked));
+        // Standing still neither is localized nearer than SWITCH_MIN_M: the first victim
+        // heard (list number 1) stays the target.
+        assert_eq!(d.target, Some(1));
+        assert!(rows[0].target && !rows[1].target);
+        // Mark: victim 1 found, the guidance moves on to victim 2; marked stays listed.
+        assert_eq!(rx.mark(), Ok(1));
+        let d = rx.display_model();
+        assert_eq!((d.target, d.found, d.victims), (Some(2), 1, 2));
+        assert!(d.list[0].unwrap().marked);
+        // Its pulses still update its own mixture, but the guidance stays on victim 2.
+        t = level_imu(&mut rx, t, 50);
+        let d = rx.on_pulse(t, &far, Some(3)).unwrap();
+        assert_eq!(d.target, Some(2));
+        assert_eq!(rx.mark(), Ok(2));
+        assert_eq!(rx.mark(), Err(AppError::NoTarget));
+        assert_eq!(rx.display_model().found, 2);
+    }
+    #[test]
+    fn full_list_counts_other_sources_and_lost_victims_are_dropped() {
+        let mut rx = Receiver::new(config()).unwrap();
+        let mut t = level_imu(&mut rx, 0.0, 20);
+        let h = pulse_from([10.0, 0.0, -1.0], [0.02, 0.0, 0.0]);
+        for src in 0..MAX_VICTIMS as u8 {
+            rx.on_pulse(t, &h, Some(src)).unwrap();
+            t = level_imu(&mut rx, t, 20);
+        }
+        let d = rx.on_pulse(t, &h, Some(9)).unwrap();
+        assert_eq!((d.victims, rx.stats().other_source), (MAX_VICTIMS as u8, 1));
+        // Sources 1..3 fall silent: after LOST_S they make room for a new one.
+        let n = ((crate::victims::LOST_S + 1.0) / 0.01) as usize;
+        let later = level_imu(&mut rx, t, n);
+        rx.on_pulse(later, &h, Some(0)).unwrap();
+        let later = level_imu(&mut rx, later, 50);
+        rx.on_pulse(later, &h, Some(9)).unwrap();
+        let d = rx.display_model();
+        assert_eq!(d.victims, 2);
         assert_eq!(rx.stats().other_source, 1);
     }
 

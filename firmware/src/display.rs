@@ -13,6 +13,12 @@
 //! ```
 //! The arrow is relative to the device's heading: straight up means "ahead", positive
 //! angles turn it to the left. "Probe here" replaces the arrow with a cross-hair.
+//!
+//! Several victims: the top row's right end lists them by number (the target drawn
+//! inverted, a found one as `+`) instead of "V1", and outside the fine search the depth
+//! row names the nearest other unmarked victim: number, distance and a direction glyph
+//! (`^` ahead, `<` left, `>` right, `v` behind). When every listed victim is marked the
+//! status word reads "ALL MARKED".
 //! Distances: 0.1 m resolution below 10 m, whole metres above.
 
 use core::fmt::Write as _;
@@ -26,7 +32,7 @@ use embedded_graphics::prelude::*;
 use embedded_graphics::primitives::{Circle, Line, PrimitiveStyle, Rectangle, Triangle};
 use embedded_graphics::text::{Baseline, Text};
 
-use crate::app::DisplayModel;
+use crate::app::{DisplayModel, VictimRow};
 use crate::guidance::Status;
 
 /// Screen width, pixels.
@@ -56,6 +62,11 @@ pub const DEPTH_AT: Point = Point::new(66, 35);
 pub const UNCERTAINTY_AT: Point = Point::new(66, 52);
 /// The uncertainty bar's outline.
 pub const UNCERTAINTY_BAR: Rectangle = Rectangle::new(Point::new(102, 53), Size::new(25, 8));
+
+/// Left end of the victim list in the top row (four 6-pixel glyphs).
+pub const LIST_AT: Point = Point::new(104, 0);
+/// Status word when every listed victim is marked.
+pub const ALL_MARKED_WORD: &str = "ALL MARKED";
 
 /// Short text, formatted without a heap.
 type Line16 = heapless::String<16>;
@@ -162,6 +173,77 @@ where
         .draw(target)
 }
 
+/// The glyph of a direction relative to the heading (degrees, positive left).
+pub fn direction_glyph(arrow_deg: f32) -> char {
+    let a = libm::fabsf(arrow_deg);
+    if a <= 30.0 {
+        '^'
+    } else if a >= 150.0 || !a.is_finite() {
+        'v'
+    } else if arrow_deg > 0.0 {
+        '<'
+    } else {
+        '>'
+    }
+}
+
+/// The nearest unmarked victim other than the target, as "3:23m <".
+pub fn next_victim(model: &DisplayModel) -> Option<Line16> {
+    let row = model
+        .list
+        .iter()
+        .flatten()
+        .filter(|r| !r.marked && !r.target)
+        .filter_map(|r| r.distance_m.map(|d| (r, d)))
+        .min_by(|a, b| a.1.total_cmp(&b.1))?
+        .0;
+    let mut s = Line16::new();
+    let _ = write!(
+        s,
+        "{}:{} {}",
+        row.number.min(9),
+        format_metres(row.distance_m.unwrap_or(0.0)),
+        row.arrow_deg.map_or('?', direction_glyph)
+    );
+    Some(s)
+}
+
+/// The victim list in the top row: the number of each victim, the target inverted, a
+/// found victim as `+`.
+fn draw_list<D>(target: &mut D, list: &[Option<VictimRow>]) -> Result<(), D::Error>
+where
+    D: DrawTarget<Color = BinaryColor>,
+{
+    for (k, row) in list.iter().enumerate() {
+        let Some(row) = row else { continue };
+        let at = LIST_AT + Point::new(6 * k as i32, 0);
+        let mut glyph = heapless::String::<2>::new();
+        let _ = if row.marked {
+            glyph.push('+')
+        } else {
+            glyph.push(char::from(b'0' + row.number.min(9)))
+        };
+        let (fg, bg) = if row.target {
+            (BinaryColor::Off, Some(BinaryColor::On))
+        } else {
+            (BinaryColor::On, None)
+        };
+        if let Some(bg) = bg {
+            Rectangle::new(at, Size::new(6, 10))
+                .into_styled(PrimitiveStyle::with_fill(bg))
+                .draw(target)?;
+        }
+        Text::with_baseline(
+            &glyph,
+            at,
+            MonoTextStyle::new(&FONT_6X10, fg),
+            Baseline::Top,
+        )
+        .draw(target)?;
+    }
+    Ok(())
+}
+
 /// Clears `target` and draws `model` on it (128×64 layout of the module docs).
 pub fn draw<D>(model: &DisplayModel, target: &mut D) -> Result<(), D::Error>
 where
@@ -172,8 +254,11 @@ where
     let big = MonoTextStyle::new(&FONT_10X20, BinaryColor::On);
 
     // Top row: status (or the lift prompt), overlap flag, victims heard.
+    let all_marked = model.victims > 0 && model.found >= model.victims;
     let word = if model.lift {
         LIFT_WORD
+    } else if all_marked && model.target.is_none() {
+        ALL_MARKED_WORD
     } else {
         status_word(model.status)
     };
@@ -181,9 +266,14 @@ where
     if model.overlap {
         Text::with_baseline("!", Point::new(98, 0), small, Baseline::Top).draw(target)?;
     }
-    let mut v = Line16::new();
-    let _ = write!(v, "V{}", model.victims.min(9));
-    Text::with_baseline(&v, Point::new(WIDTH as i32 - 12, 0), small, Baseline::Top).draw(target)?;
+    if model.list.iter().flatten().count() > 1 || model.found > 0 {
+        draw_list(target, &model.list)?;
+    } else {
+        let mut v = Line16::new();
+        let _ = write!(v, "V{}", model.victims.min(9));
+        Text::with_baseline(&v, Point::new(WIDTH as i32 - 12, 0), small, Baseline::Top)
+            .draw(target)?;
+    }
     Line::new(Point::new(0, 10), Point::new(WIDTH as i32 - 1, 10))
         .into_styled(PrimitiveStyle::with_stroke(BinaryColor::On, 1))
         .draw(target)?;
@@ -206,6 +296,8 @@ where
         let mut s = Line16::new();
         let _ = write!(s, "dep {}", format_metres(depth));
         Text::with_baseline(&s, DEPTH_AT, small, Baseline::Top).draw(target)?;
+    } else if let Some(next) = next_victim(model) {
+        Text::with_baseline(&next, DEPTH_AT, small, Baseline::Top).draw(target)?;
     }
     if let Some(sigma) = model.uncertainty_m {
         let mut s = Line16::new();
@@ -251,6 +343,7 @@ mod tests {
             pulses: 5,
             t_s: 5.0,
             lift: false,
+            ..DisplayModel::default()
         }
     }
 
@@ -357,6 +450,51 @@ mod tests {
             &FONT_10X20
         ));
         assert!((DISTANCE_AT.y..64).all(|y| (DISTANCE_AT.x..128).all(|x| !lit(&f, x, y))));
+    }
+
+    #[test]
+    fn victim_list_target_inverted_found_as_plus_and_next_victim() {
+        let mut m = model();
+        m.depth_m = None;
+        m.victims = 3;
+        m.found = 1;
+        m.target = Some(2);
+        let row = |number, d: f32, a: f32, marked, target| VictimRow {
+            number,
+            distance_m: Some(d),
+            arrow_deg: Some(a),
+            marked,
+            target,
+        };
+        m.list = [
+            Some(row(1, 3.0, 0.0, true, false)),
+            Some(row(2, 12.3, 0.0, false, true)),
+            Some(row(3, 23.4, 100.0, false, false)),
+            None,
+        ];
+        let mut f = Frame::new();
+        draw(&m, &mut f).unwrap();
+        assert!(shows_text(&f, "+", LIST_AT, &FONT_6X10));
+        assert!(shows_text(&f, "3", LIST_AT + Point::new(12, 0), &FONT_6X10));
+        // The target's cell is inverted: its corner is lit.
+        assert!(lit(&f, LIST_AT.x + 6, 0) && lit(&f, LIST_AT.x + 11, 9));
+        assert!(!lit(&f, LIST_AT.x + 18, 9));
+        assert!(shows_text(&f, "3:23m <", DEPTH_AT, &FONT_6X10));
+        assert_eq!(next_victim(&m).unwrap().as_str(), "3:23m <");
+        // Every listed victim marked, no target: "ALL MARKED".
+        m.found = 3;
+        m.target = None;
+        for r in m.list.iter_mut().flatten() {
+            r.marked = true;
+            r.target = false;
+        }
+        let mut f = Frame::new();
+        draw(&m, &mut f).unwrap();
+        assert!(shows_text(&f, ALL_MARKED_WORD, Point::zero(), &FONT_6X10));
+        assert!(next_victim(&m).is_none());
+        assert_eq!(direction_glyph(-90.0), '>');
+        assert_eq!(direction_glyph(170.0), 'v');
+        assert_eq!(direction_glyph(f32::NAN), 'v');
     }
 
     #[test]

@@ -24,6 +24,8 @@
 //!   filter [`estimate::SogFilter`] (IROS 2006 Algorithm 1; ICRA 2006 known trajectory).
 //! - [`guidance`]: search control (IROS 2006 §III-C, ICRA 2006 §V-D): flux line, then the
 //!   mixture mean, fine search and "probe here".
+//! - [`victims`]: several transmitters — one SOGs mixture per victim, displacement
+//!   composition between a victim's pulses, the victim list.
 //! - [`app`]: the application state machine [`app::Receiver`] that owns the pipeline.
 //! - [`display`]: draws the [`app::DisplayModel`] on any 128×64 monochrome
 //!   `embedded-graphics` target.
@@ -58,6 +60,7 @@ pub mod guidance;
 #[cfg_attr(not(test), allow(clippy::indexing_slicing))]
 pub mod motion;
 pub mod session_log;
+pub mod victims;
 
 /// The linear-algebra crate used in this crate's public API, re-exported so that users
 /// do not end up with two versions of nalgebra.

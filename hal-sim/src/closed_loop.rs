@@ -246,7 +246,7 @@ impl Outcome {
     }
 }
 
-fn gauss(rng: &mut impl Rng) -> f64 {
+pub(crate) fn gauss(rng: &mut impl Rng) -> f64 {
     StandardNormal.sample(rng)
 }
 
@@ -264,11 +264,11 @@ pub const LIFT_M: f64 = 0.4;
 pub const LIFT_S: f64 = 2.0;
 
 /// Tick of the simulation (the IMU period), s.
-const DT: f64 = 0.01;
+pub(crate) const DT: f64 = 0.01;
 /// Height of the receiver above the snow, m.
-const HOLD_HEIGHT_M: f64 = 1.0;
+pub(crate) const HOLD_HEIGHT_M: f64 = 1.0;
 /// Receiver ahead of / left of the torso, m.
-const HOLD_OFFSET_M: [f64; 2] = [0.35, -0.1];
+pub(crate) const HOLD_OFFSET_M: [f64; 2] = [0.35, -0.1];
 /// Vertical bounce of the receiver per step, m (≈ 2.6 m/s² at 1.8 Hz).
 const BOB_M: f64 = 0.02;
 /// Smallest |H| / σ_bkg at the start (the primary search's first usable signal).
@@ -319,33 +319,33 @@ fn draw_scenario(cfg: &ClosedLoopConfig, rng: &mut ChaCha8Rng, noise: &PulseNois
 
 /// Receiver pose at one tick.
 #[derive(Debug, Clone, Copy)]
-struct Pose {
-    t: f64,
-    p: V3,
-    rpy: V3,
+pub(crate) struct Pose {
+    pub(crate) t: f64,
+    pub(crate) p: V3,
+    pub(crate) rpy: V3,
 }
 
 /// The walking person (torso on the snow surface).
-struct Person {
-    c: [f64; 2],
-    psi: f64,
-    psi_dot: f64,
-    w: f64,
-    w_target: f64,
-    phase: f64,
-    psi_des: f64,
-    wobble: [Wobble; 3],
+pub(crate) struct Person {
+    pub(crate) c: [f64; 2],
+    pub(crate) psi: f64,
+    pub(crate) psi_dot: f64,
+    pub(crate) w: f64,
+    pub(crate) w_target: f64,
+    pub(crate) phase: f64,
+    pub(crate) psi_des: f64,
+    pub(crate) wobble: [Wobble; 3],
     /// Receiver height above the snow, m.
-    hold_height: f64,
+    pub(crate) hold_height: f64,
     /// Fine search of the directional search: the receiver is carried straight to this
     /// point (north, west) at [`CRAWL_M_S`], without steps.
-    crawl_to: Option<[f64; 2]>,
+    pub(crate) crawl_to: Option<[f64; 2]>,
     /// Start time of a lift of the receiver under way (see [`LIFT_M`]).
-    lift_t0: Option<f64>,
+    pub(crate) lift_t0: Option<f64>,
 }
 
 impl Person {
-    fn advance(&mut self, cfg: &ClosedLoopConfig) {
+    pub(crate) fn advance(&mut self, cfg: &ClosedLoopConfig) {
         if let Some(target) = self.crawl_to {
             let device = self.device_xy();
             let (dx, dy) = (target[0] - device[0], target[1] - device[1]);
@@ -388,7 +388,7 @@ impl Person {
     }
 
     /// Horizontal receiver position (north, west).
-    fn device_xy(&self) -> [f64; 2] {
+    pub(crate) fn device_xy(&self) -> [f64; 2] {
         let (s, c) = self.psi.sin_cos();
         let [f, l] = HOLD_OFFSET_M;
         [self.c[0] + f * c - l * s, self.c[1] + f * s + l * c]
@@ -402,7 +402,7 @@ impl Person {
         })
     }
 
-    fn pose(&self, t: f64) -> Pose {
+    pub(crate) fn pose(&self, t: f64) -> Pose {
         let (s, c) = self.psi.sin_cos();
         let [f, l] = HOLD_OFFSET_M;
         // The bob is a function of the gait phase only (at rest between steps): one dip
@@ -425,7 +425,7 @@ impl Person {
 }
 
 /// IMU sample synthesized at the middle pose of three consecutive ticks.
-fn imu_sample(
+pub(crate) fn imu_sample(
     rng: &mut ChaCha8Rng,
     noise: &ImuNoise,
     bias: &V3,
@@ -453,25 +453,25 @@ fn imu_sample(
 
 /// What the rescuer saw on the display at one tick.
 #[derive(Debug, Clone, Copy)]
-struct Seen {
-    t: f64,
-    display: DisplayModel,
+pub(crate) struct Seen {
+    pub(crate) t: f64,
+    pub(crate) display: DisplayModel,
     /// Torso heading when it was seen.
-    psi: f64,
+    pub(crate) psi: f64,
 }
 
 /// The rescuer's fine-search plan: walk to `end_phase`, then stand.
 #[derive(Debug, Clone, Copy, Default)]
-struct StepPlan {
-    end_phase: Option<f64>,
-    acted_pulse: u32,
-    stopped_at: f64,
+pub(crate) struct StepPlan {
+    pub(crate) end_phase: Option<f64>,
+    pub(crate) acted_pulse: u32,
+    pub(crate) stopped_at: f64,
     /// Turned back after losing the signal (until the next arrow).
-    turned_back: bool,
+    pub(crate) turned_back: bool,
     /// Last pulse seen during (or before) the last lift: a lift needs a newer one.
-    lift_pulse: u32,
+    pub(crate) lift_pulse: u32,
     /// Lifts made.
-    lifts: u32,
+    pub(crate) lifts: u32,
 }
 
 /// Runs one closed-loop rescue; `on_pulse` sees every pulse's row and the receiver.
@@ -724,7 +724,7 @@ pub fn run(
 
 /// Primary search: straight on along `heading` (with the rescuer's heading error), or
 /// stand when there is none.
-fn walk_primary(person: &mut Person, heading: Option<f64>, heading_err: f64) {
+pub(crate) fn walk_primary(person: &mut Person, heading: Option<f64>, heading_err: f64) {
     match heading {
         Some(h) => {
             person.psi_des = h + heading_err;
@@ -949,7 +949,7 @@ impl Directional {
 }
 
 /// The rescuer's reaction to what they saw.
-fn act(
+pub(crate) fn act(
     cfg: &ClosedLoopConfig,
     person: &mut Person,
     plan: &mut StepPlan,

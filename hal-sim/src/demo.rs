@@ -32,6 +32,13 @@ pub struct Args {
     /// Output directory for `demo.png` and `display.png` (default `runs/demo-<seed>`).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Several buried victims (2–4, see `multi-report`): the simulated rescuer presses
+    /// the mark key ("M") at each "probe here" and moves on to the next victim.
+    #[arg(long)]
+    pub victims: Option<usize>,
+    /// Layout of the victims with `--victims`.
+    #[arg(long, value_enum, default_value_t = crate::multi::Layout::ClosePairOverlap)]
+    pub layout: crate::multi::Layout,
 }
 
 /// The screen as text: two pixel rows per line with half blocks (`▀ ▄ █`), framed.
@@ -69,6 +76,93 @@ pub fn render(rx: &Receiver) -> Frame {
     f
 }
 
+/// The multi-victim demo: live screen, mark key presses, the final screen as a PNG.
+fn run_multi(args: &Args, victims: usize, dir: &Path, out: &mut impl Write) -> Result<()> {
+    use crate::multi::{Event, MultiConfig, run_with};
+    let live = !args.quiet && std::io::stdout().is_terminal();
+    let every = args.every.max(1);
+    let mut n = 0usize;
+    let mut io_err = None;
+    let mut last_frame = Frame::new();
+    let mut log = String::new();
+    let cfg = MultiConfig::new(args.seed, victims, args.layout);
+    let outcome = run_with(&cfg, &mut |ev: Event, rx: &Receiver| {
+        last_frame = render(rx);
+        let head = match ev {
+            Event::Pulse(t) => {
+                n += 1;
+                if args.quiet || !(n - 1).is_multiple_of(every) {
+                    return;
+                }
+                format!("t {t:6.1} s  pulse {n:4}")
+            }
+            Event::Mark(t, k) => {
+                let line = format!("t {t:6.1} s  key M: victim {k} marked as found\n");
+                log.push_str(&line);
+                if args.quiet {
+                    return;
+                }
+                line
+            }
+        };
+        let d = rx.display_model();
+        let list: Vec<String> = d
+            .list
+            .iter()
+            .flatten()
+            .map(|r| {
+                format!(
+                    "{}{}:{}{}",
+                    if r.target { ">" } else { " " },
+                    r.number,
+                    r.distance_m.map_or("?".into(), |m| format!("{m:.1}m")),
+                    if r.marked { " found" } else { "" }
+                )
+            })
+            .collect();
+        let text = format!(
+            "{}{head}  [{}]  list {}\n{}",
+            if live { "\x1b[H\x1b[2J" } else { "" },
+            d.status.as_str(),
+            list.join("  "),
+            ascii_frame(&last_frame),
+        );
+        if let Err(e) = out.write_all(text.as_bytes())
+            && io_err.is_none()
+        {
+            io_err = Some(e);
+        }
+    })?;
+    if let Some(e) = io_err {
+        return Err(e.into());
+    }
+    let screen = dir.join("display.png");
+    write_frame_png(&last_frame, &screen, 4)?;
+    write!(out, "{log}")?;
+    for (i, v) in outcome.victims.iter().enumerate() {
+        writeln!(
+            out,
+            "victim {} at ({:.1}, {:.1}, {:.1}) m: {}",
+            i + 1,
+            v.position[0],
+            v.position[1],
+            v.position[2],
+            v.error_h_m.map_or_else(
+                || "not found".into(),
+                |e| format!("found, probe-point error {e:.2} m")
+            ),
+        )?;
+    }
+    writeln!(
+        out,
+        "{} wrong-victim marks; path {:.0} m; wrote {}",
+        outcome.wrong_marks(),
+        outcome.path_m,
+        screen.display()
+    )?;
+    Ok(())
+}
+
 /// Runs the demo.
 pub fn run(args: &Args, out: &mut impl Write) -> Result<()> {
     let dir = args
@@ -76,6 +170,9 @@ pub fn run(args: &Args, out: &mut impl Write) -> Result<()> {
         .clone()
         .unwrap_or_else(|| PathBuf::from(format!("runs/demo-{}", args.seed)));
     std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
+    if let Some(v) = args.victims {
+        return run_multi(args, v, &dir, out);
+    }
     let live = !args.quiet && std::io::stdout().is_terminal();
     let every = args.every.max(1);
     let mut n = 0usize;

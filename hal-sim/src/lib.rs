@@ -12,6 +12,7 @@ pub mod faults;
 pub mod field_map;
 pub mod inspect;
 pub mod jet;
+pub mod multi;
 pub mod physics;
 pub mod receiver_config;
 pub mod replay;

@@ -72,6 +72,10 @@ enum Command {
     /// Seeded team scenarios through team-map, scored against the truth; a markdown
     /// report and a PNG.
     TeamReport(hal_sim::team::report::Args),
+    /// Seeded multi-victim rescues (2–4 victims, close pairs, long pulse overlaps) with
+    /// marking: victims found, per-victim error, time to find all, wrong-victim marks;
+    /// a markdown report.
+    MultiReport(hal_sim::multi::Args),
 }
 
 fn read_log(path: &Path) -> Result<session::Session> {
@@ -121,5 +125,6 @@ fn main() -> Result<()> {
         Command::TeamScenario(args) => hal_sim::team::run_scenario(&args, &mut stdout.lock()),
         Command::TeamMap(args) => hal_sim::team::run_map(&args, &mut stdout.lock()),
         Command::TeamReport(args) => hal_sim::team::report::run(&args, &mut stdout.lock()),
+        Command::MultiReport(args) => hal_sim::multi::report(&args, &mut stdout.lock()),
     }
 }

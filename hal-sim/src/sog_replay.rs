@@ -106,15 +106,21 @@ impl Estimator for SogReplay {
             .on_pulse(t, &v3(&pulse.h), src)
             .unwrap_or_else(|_| self.receiver.display_model());
         let yaw = f64::from(self.receiver.motion().attitude().0.z);
-        let victims = self
-            .receiver
-            .estimate()
-            .map(|e| {
-                let p = [e.p.x, e.p.y, e.p.z].map(f64::from);
-                let cov: [f64; 9] = core::array::from_fn(|i| f64::from(e.cov[(i / 3, i % 3)]));
-                VictimEstimate::new(p, cov, yaw)
-            })
+        // Every listed victim with an estimate (several transmitters: one mixture each),
+        // the one the guidance leads to first; positions relative to the receiver now.
+        let bank = self.receiver.victims();
+        let target = self.receiver.target();
+        let victims = target
             .into_iter()
+            .chain(bank.active().map(|(i, _)| i).filter(|i| Some(*i) != target))
+            .filter_map(|i| {
+                let v = bank.get(i)?;
+                let e = firmware::estimate::Estimator::estimate(v.filter())?;
+                let p = v.position_now()?;
+                let p = [p.x, p.y, p.z].map(f64::from);
+                let cov: [f64; 9] = core::array::from_fn(|i| f64::from(e.cov[(i / 3, i % 3)]));
+                Some(VictimEstimate::new(p, cov, yaw))
+            })
             .collect();
         ReplayLine {
             t: pulse.t,

@@ -659,15 +659,15 @@ fn imu_not_answering_at_start_up_is_an_init_error() {
 #[test]
 fn the_board_path_flags_a_withheld_pulse_too() {
     // The board runs the front end itself (it logs each field pulse before processing)
-    // and reports a withheld pulse with `on_withheld_pulse`: same flag and counter as
+    // and reports a withheld pulse with `on_withheld`: same flag and counter as
     // `on_adc_sample`, cleared by the next field pulse.
     let sim = search(48);
     let cfg = hal_sim::sog_replay::app_config(&sim.session.header, &sim.receiver);
     let mut rx = Box::new(Receiver::new(cfg).unwrap());
-    let d = rx.on_withheld_pulse();
+    let p = sim.session.pulses().next().unwrap();
+    let d = rx.on_withheld(p.t as f32 - 0.5);
     assert!(d.overlap);
     assert_eq!(rx.stats().pulses_withheld, 1);
-    let p = sim.session.pulses().next().unwrap();
     let h = Vec3::new(p.h[0] as f32, p.h[1] as f32, p.h[2] as f32);
     assert!(!rx.on_pulse(p.t as f32, &h, None).unwrap().overlap);
 }

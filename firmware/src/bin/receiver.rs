@@ -11,6 +11,7 @@
 //! | IMU BMI160 (acc+gyr) + LSM303AGR (mag), SSD1306 128×64 display | I2C1, 400 kHz, shared | SCL PB6, SDA PB7 |
 //! | session-log stream (spec `arva-session` v1, 921 600 Bd) | USART3 TX | PB10 |
 //! | IMU sample clock (100 Hz) | TIM2 | – |
+//! | mark button (push button to ground, internal pull-up; polled at 100 Hz, debounced) | GPIO | PC6 |
 //!
 //! Timing: every ADC sample is read in the DRDY interrupt (EXTI9_5, highest priority)
 //! into a lock-free queue, so no sample is lost while the main loop runs the estimator
@@ -40,6 +41,7 @@ use firmware::app::{AppConfig, Receiver};
 use firmware::drivers::ads131m04::{self, Ads131m04};
 use firmware::drivers::imu::Imu;
 use firmware::frontend::{Frontend, FrontendConfig, PulseMeasurement};
+use firmware::victims::MarkButton;
 use firmware::{Vec3, display, session_log};
 use heapless::spsc::{Consumer, Producer, Queue};
 use panic_probe as _;
@@ -216,6 +218,8 @@ fn main() -> ! {
     };
     let (producer, mut consumer): (Producer<'static, Sample>, Consumer<'static, Sample>) =
         queue.split();
+    // The mark button: flags the victim being guided to as found.
+    let mut mark = MarkButton::new(gpioc.pc6.into_pull_up_input());
     let mut drdy = gpioc.pc7.into_pull_up_input();
     drdy.make_interrupt_source(&mut syscfg);
     drdy.trigger_on_edge(&mut exti, Edge::Falling);
@@ -256,7 +260,8 @@ fn main() -> ! {
                             );
                             receiver.on_pulse(pulse.t_s, &h, pulse.src).ok()
                         }
-                        _ => Some(receiver.on_withheld_pulse()),
+                        // Overlap, clipping, truncation: held out of the estimators.
+                        _ => Some(receiver.on_withheld(pulse.t_s)),
                     };
                     if let Some(model) = model
                         && screen_ok
@@ -271,24 +276,38 @@ fn main() -> ! {
                 Err(_) => defmt::warn!("front end refused a sample"),
             }
         }
-        if imu_tick.wait().is_ok()
-            && let Some(imu) = imu.as_mut()
-        {
-            let t = seconds(taken, rate);
-            match imu.read() {
-                Ok(r) => {
-                    let _ = session_log::write_imu(
-                        &mut log,
-                        f64::from(t),
-                        &r.acc,
-                        &r.gyr,
-                        Some(&r.mag),
-                    );
-                    if receiver.on_imu(t, &r.acc, &r.gyr, Some(&r.mag)).is_err() {
-                        defmt::warn!("IMU sample refused");
+        if imu_tick.wait().is_ok() {
+            // The mark button, polled at the IMU tick (debounced over 3 ticks).
+            if mark.poll() {
+                match receiver.mark() {
+                    Ok(n) => defmt::info!("victim {=u8} marked", n),
+                    Err(_) => defmt::info!("mark: no victim to mark"),
+                }
+                if screen_ok {
+                    screen.clear(BinaryColor::Off).ok();
+                    let model = receiver.display_model();
+                    if display::draw(&model, &mut screen).is_err() || screen.flush().is_err() {
+                        defmt::warn!("display write failed");
                     }
                 }
-                Err(_) => defmt::warn!("IMU read failed"),
+            }
+            if let Some(imu) = imu.as_mut() {
+                let t = seconds(taken, rate);
+                match imu.read() {
+                    Ok(r) => {
+                        let _ = session_log::write_imu(
+                            &mut log,
+                            f64::from(t),
+                            &r.acc,
+                            &r.gyr,
+                            Some(&r.mag),
+                        );
+                        if receiver.on_imu(t, &r.acc, &r.gyr, Some(&r.mag)).is_err() {
+                            defmt::warn!("IMU sample refused");
+                        }
+                    }
+                    Err(_) => defmt::warn!("IMU read failed"),
+                }
             }
         }
         let dropped = DROPPED.load(Ordering::Relaxed);

@@ -362,6 +362,8 @@ impl Frontend {
         };
         // Overlapped pulses have no trustworthy timing or carrier for the tracker.
         let src = if a.overlap {
+            // ...but the transmitters expected there are kept alive across it.
+            self.tracker.occluded(t_s);
             None
         } else {
             self.tracker.assign(t_s, a.offset_hz)

@@ -5,6 +5,13 @@
 //! the time of its last pulse, its period once two pulses are seen, and its carrier
 //! offset; a new pulse goes to the track whose predicted pulse time (allowing a few
 //! missed pulses) and carrier are closest, within gates, or starts a new track.
+//!
+//! Two transmitters whose periods differ by a few milliseconds overlap for tens of
+//! pulses in a row; the front end withholds those pulses ([`super::PulseMeasurement::
+//! Overlap`]) and reports each with [`TransmitterTracker::occluded`]. A track whose
+//! predicted pulse falls in such an overlap is kept alive (it is not expired) and its
+//! timing is extrapolated by its period across up to [`MAX_MISSED`] missed pulses, so
+//! both transmitters keep their ids — and their victims their mixtures — after it.
 
 use heapless::Vec as HVec;
 
@@ -21,9 +28,15 @@ const TIME_GATE_S: f32 = 0.06;
 /// Largest carrier difference (Hz) accepted against a track (covers the offset
 /// estimate's noise near the floor).
 const FREQ_GATE_HZ: f32 = 15.0;
-/// Pulses a track may miss and still be matched.
-const MAX_MISSED: u32 = 3;
-/// A track not seen for this long (s) is dropped.
+/// Pulses a track with a known period may miss (e.g. held out in a long overlap) and
+/// still be matched.
+pub const MAX_MISSED: u32 = 60;
+/// Missed pulses bridged while the period is still unknown (two pulses seen).
+const MAX_MISSED_UNKNOWN: u32 = 3;
+/// Growth of the timing gate per bridged period (s): the period estimate's error, a
+/// smoothed mean of pulse intervals, is a few milliseconds at most.
+const DRIFT_GATE_S: f32 = 0.003;
+/// A track neither heard nor occluded for this long (s) is dropped.
 const EXPIRE_S: f32 = 4.5;
 /// Smoothing of the period and carrier estimates.
 const ALPHA: f32 = 0.3;
@@ -41,6 +54,8 @@ pub struct Track {
     pub carrier_offset_hz: f32,
     /// Pulses attributed so far.
     pub hits: u32,
+    /// Last time (s) it was heard or its predicted pulse was hidden by an overlap.
+    pub alive_t_s: f32,
 }
 
 /// Assigns pulses to transmitters; fixed capacity [`MAX_TRACKS`].
@@ -67,7 +82,7 @@ impl TransmitterTracker {
         if !t_s.is_finite() || !offset_hz.is_finite() {
             return None;
         }
-        self.tracks.retain(|tr| t_s - tr.last_t_s <= EXPIRE_S);
+        self.tracks.retain(|tr| t_s - tr.alive_t_s <= EXPIRE_S);
         let mut best: Option<(usize, f32, u32)> = None;
         for (i, tr) in self.tracks.iter().enumerate() {
             if let Some((cost, k)) = match_cost(tr, t_s, offset_hz)
@@ -86,6 +101,7 @@ impl TransmitterTracker {
             });
             tr.carrier_offset_hz += ALPHA * (offset_hz - tr.carrier_offset_hz);
             tr.last_t_s = t_s;
+            tr.alive_t_s = t_s;
             tr.hits = tr.hits.saturating_add(1);
             return Some(tr.id);
         }
@@ -97,6 +113,7 @@ impl TransmitterTracker {
             period_s: None,
             carrier_offset_hz: offset_hz,
             hits: 1,
+            alive_t_s: t_s,
         };
         if self.tracks.is_full() {
             // Replace the track silent for longest.
@@ -104,7 +121,7 @@ impl TransmitterTracker {
                 .tracks
                 .iter()
                 .enumerate()
-                .min_by(|a, b| a.1.last_t_s.total_cmp(&b.1.last_t_s))
+                .min_by(|a, b| a.1.alive_t_s.total_cmp(&b.1.alive_t_s))
                 .map(|(i, _)| i);
             if let Some(i) = stalest {
                 self.tracks.swap_remove(i);
@@ -112,6 +129,40 @@ impl TransmitterTracker {
         }
         self.tracks.push(track).ok()?;
         Some(id)
+    }
+
+    /// A pulse centred at `t_s` (s) was withheld as an overlap of several transmitters:
+    /// the tracks whose predicted pulse falls there are kept alive (timing and carrier
+    /// are untouched: an overlapped pulse has neither). Returns how many.
+    pub fn occluded(&mut self, t_s: f32) -> usize {
+        if !t_s.is_finite() {
+            return 0;
+        }
+        let mut n = 0;
+        for tr in self.tracks.iter_mut() {
+            if predicted_near(tr, t_s) {
+                tr.alive_t_s = tr.alive_t_s.max(t_s);
+                n += 1;
+            }
+        }
+        n
+    }
+}
+
+/// Whether a pulse of `tr` is predicted within an overlap window around `t_s` (the
+/// overlap's centre lies up to a pulse length, ≤ 0.2 s, from either pulse's centre).
+fn predicted_near(tr: &Track, t_s: f32) -> bool {
+    let dt = t_s - tr.last_t_s;
+    if dt <= 0.0 || t_s - tr.alive_t_s > EXPIRE_S {
+        return false;
+    }
+    match tr.period_s {
+        Some(p) if p > 0.0 => {
+            let k = libm::roundf(dt / p);
+            k >= 1.0 && libm::fabsf(dt - k * p) <= 0.2 + DRIFT_GATE_S * k
+        }
+        // Unknown period: any plausible next pulse.
+        _ => dt >= PERIOD_MIN_S - 0.2,
     }
 }
 
@@ -132,11 +183,12 @@ fn match_cost(tr: &Track, t_s: f32, offset_hz: f32) -> Option<(f32, u32)> {
                 return None;
             }
             let err = dt - k * p;
-            // Allow the prediction error to grow with the periods bridged.
-            let gate = TIME_GATE_S * libm::sqrtf(k);
+            // Allow the prediction error to grow with the periods bridged: pulse-time
+            // jitter once, the period's error k times.
+            let gate = TIME_GATE_S + DRIFT_GATE_S * (k - 1.0);
             (err.abs() <= gate).then(|| ((err / gate) * (err / gate) + freq_cost, k as u32))
         }
-        None => (1..=MAX_MISSED + 1)
+        None => (1..=MAX_MISSED_UNKNOWN + 1)
             .find(|&k| {
                 let p = dt / k as f32;
                 (PERIOD_MIN_S - TIME_GATE_S..=PERIOD_MAX_S + TIME_GATE_S).contains(&p)
@@ -198,6 +250,48 @@ mod tests {
             assert_eq!(ids[who], Some(id), "t = {t}");
         }
         assert!(tr.assign(f32::NAN, 0.0).is_none());
+    }
+
+    #[test]
+    fn long_overlap_is_bridged_with_ids_kept() {
+        // Periods 1.000 s and 1.004 s, pulses 0.1 s long, the second 0.03 s behind:
+        // they overlap for pulses 51..=99 (the front end withholds those).
+        let (pa, pb) = (1.0f32, 1.004f32);
+        let mut tr = TransmitterTracker::new();
+        let mut ids = [None, None];
+        let (mut assigned, mut held) = (0, 0);
+        for k in 0..130 {
+            let ta = 0.5 + pa * k as f32;
+            let tb = 0.2 + pb * k as f32;
+            let overlap = (ta - tb).abs() < 0.1;
+            held += usize::from(overlap);
+            for (who, t, f) in [(0, ta, -12.0), (1, tb, 20.0)] {
+                if overlap {
+                    tr.occluded(t);
+                    continue;
+                }
+                let id = tr.assign(t, f).unwrap();
+                assigned += 1;
+                match ids[who] {
+                    None => ids[who] = Some(id),
+                    Some(prev) => assert_eq!(prev, id, "tx {who} at {t}"),
+                }
+            }
+        }
+        assert!(held >= 45, "{held}");
+        assert_eq!(assigned, 2 * (130 - held));
+        assert_ne!(ids[0], ids[1]);
+        assert_eq!(tr.tracks().len(), 2);
+        // Without the occlusion reports both tracks expire during the overlap.
+        let mut bare = TransmitterTracker::new();
+        for k in 0..130 {
+            let (ta, tb) = (0.5 + pa * k as f32, 0.2 + pb * k as f32);
+            if (ta - tb).abs() >= 0.1 {
+                bare.assign(ta, -12.0);
+                bare.assign(tb, 20.0);
+            }
+        }
+        assert!(bare.tracks().iter().all(|t| t.id >= 2));
     }
 
     #[test]

@@ -1,0 +1,544 @@
+//! Several buried transmitters: one SOGs mixture per victim, sharing a fixed capacity.
+//!
+//! The front end attributes every pulse to a transmitter track (`src`, see
+//! [`crate::frontend::TransmitterTracker`]). Each track that is heard gets a slot of the
+//! [`VictimBank`]: its own robocentric SOGs filter ([`VictimSog`]), the receiver's
+//! displacement accumulated since that victim's last pulse ([`Pending`]) and its list
+//! state (number, marked). A pulse updates only its own victim's mixture, so the cost of
+//! a pulse is that of one filter step, whatever the number of victims.
+//!
+//! # Why the displacement is composed per victim
+//! The filter of IROS 2006 is robocentric: each step takes the receiver's motion since
+//! *that filter's* previous pulse (eq. 4) and composes it into `G_k` (eq. 5–6). With
+//! several transmitters, the pulses of victim A arrive between those of victim B, so the
+//! motion pipeline's interval (closed at every pulse) is composed onto every other
+//! victim's pending displacement with [`compose`] — the same `⊕` of eq. 5–6 applied to
+//! two motions, with first-order covariance propagation.
+//!
+//! # Memory budget (STM32F405: 64 KB CCM + 128 KB SRAM)
+//! The receiver application (this bank included) stays in the 64 KB CCM, as the single
+//! filter did. [`MAX_VICTIMS`] = 4 slots (the front end's [`crate::frontend::MAX_TRACKS`])
+//! of [`VICTIM_CAPACITY`] = 56 components × 264 B: 59 136 B of components for a total
+//! of 224, against 240 for the former single filter (see `hal-sim/reports/multi.md` for
+//! the single-victim accuracy at this capacity).
+
+use crate::Vec3;
+use crate::estimate::{
+    Attitude, Displacement, EstimateError, Estimator, Pulse, SogConfig, SogFilter, StepReport,
+};
+use crate::frame::{Rpy, compose_rpy, rotation_from_rpy, rotation_partials};
+use nalgebra::SMatrix;
+
+/// Victims followed at once: one per front-end track.
+pub const MAX_VICTIMS: usize = crate::frontend::MAX_TRACKS;
+/// Components per victim's mixture (four of them fit the 64 KB CCM with the rest of
+/// the application).
+pub const VICTIM_CAPACITY: usize = 56;
+/// The per-victim filter.
+pub type VictimSog = SogFilter<VICTIM_CAPACITY>;
+/// An unmarked victim not heard for this long (s) is dropped from the list (its track
+/// is lost: out of range, switched off, or re-identified by the front end).
+pub const LOST_S: f32 = 60.0;
+
+type Mat6 = SMatrix<f32, 6, 6>;
+
+/// The composition `a ⊕ b` of two consecutive motions (IROS 2006 eq. 5–6): `a` from
+/// `R_i` to `R_j`, `b` from `R_j` to `R_k`; the result goes from `R_i` to `R_k`.
+///
+/// Translation `t = t_a + R(Ψ_a) t_b`, rotation `Ψ = Ψ_a ⊕ Ψ_b`; the covariance is
+/// `J_a Q_a J_aᵀ + J_b Q_b J_bᵀ` (the two intervals' errors are independent). The
+/// absolute (unscaled) parts compose the same way: `s·t + abs` stays linear in `s`.
+/// Returns `None` when the result is not finite.
+pub fn compose(a: &Displacement, b: &Displacement) -> Option<Displacement> {
+    let ra = rotation_from_rpy(&a.rotation);
+    let (rot, ja_rot, jb_rot) = compose_rpy(&a.rotation, &b.rotation);
+    let partials = rotation_partials(&a.rotation);
+    // J_a = [[I, ∂(R_a t_b)/∂Ψ_a], [0, ∂Ψ/∂Ψ_a]],  J_b = [[R_a, 0], [0, ∂Ψ/∂Ψ_b]].
+    let mut ja = Mat6::identity();
+    let mut jb = Mat6::zeros();
+    for (c, dr) in partials.iter().enumerate() {
+        let col = dr * b.translation;
+        ja.fixed_view_mut::<3, 1>(0, 3 + c).copy_from(&col);
+    }
+    ja.fixed_view_mut::<3, 3>(3, 3).copy_from(&ja_rot);
+    jb.fixed_view_mut::<3, 3>(0, 0).copy_from(&ra);
+    jb.fixed_view_mut::<3, 3>(3, 3).copy_from(&jb_rot);
+    let cov = ja * a.cov * ja.transpose() + jb * b.cov * jb.transpose();
+    let d = Displacement {
+        translation: a.translation + ra * b.translation,
+        rotation: rot,
+        cov: (cov + cov.transpose()) * 0.5,
+        absolute: a.absolute + ra * b.absolute,
+        absolute_cov: a.absolute_cov + ra * b.absolute_cov * ra.transpose(),
+    };
+    let finite = d.translation.iter().all(|v| v.is_finite())
+        && d.rotation.iter().all(|v| v.is_finite())
+        && d.cov.iter().all(|v| v.is_finite())
+        && d.absolute.iter().all(|v| v.is_finite())
+        && d.absolute_cov.iter().all(|v| v.is_finite());
+    finite.then_some(d)
+}
+
+/// The receiver's motion since a victim's last pulse.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pending {
+    /// The composed displacement.
+    pub d: Displacement,
+    /// Distance walked along the path, m.
+    pub distance_m: f32,
+}
+
+impl Pending {
+    /// No motion yet.
+    pub fn zero() -> Self {
+        Self {
+            d: Displacement::zero(),
+            distance_m: 0.0,
+        }
+    }
+
+    /// This motion followed by `next` (walking `distance_m`), or `None` if not finite.
+    pub fn then(&self, next: &Displacement, distance_m: f32) -> Option<Self> {
+        Some(Self {
+            d: compose(&self.d, next)?,
+            distance_m: self.distance_m + distance_m.max(0.0),
+        })
+    }
+}
+
+/// One victim of the list.
+#[derive(Debug, Clone)]
+pub struct Victim {
+    src: Option<u8>,
+    filter: VictimSog,
+    pending: Pending,
+    last_t: f32,
+    /// Attitude of the receiver at this victim's last pulse (to bring its estimate,
+    /// relative to `R` then, to the present).
+    rpy_last: Rpy,
+    active: bool,
+    marked: bool,
+    pulses: u32,
+}
+
+impl Victim {
+    /// The front-end source of this victim (`None`: logs without source attribution).
+    pub fn src(&self) -> Option<u8> {
+        self.src
+    }
+
+    /// This victim's mixture.
+    pub fn filter(&self) -> &VictimSog {
+        &self.filter
+    }
+
+    /// Whether the rescuer marked this victim as found.
+    pub fn marked(&self) -> bool {
+        self.marked
+    }
+
+    /// Pulses of this victim accepted so far.
+    pub fn pulses(&self) -> u32 {
+        self.pulses
+    }
+
+    /// Time of this victim's last pulse, s.
+    pub fn last_t(&self) -> f32 {
+        self.last_t
+    }
+
+    /// The motion since this victim's last pulse.
+    pub fn pending(&self) -> &Pending {
+        &self.pending
+    }
+
+    /// The victim's position relative to the receiver *now* (m, north/west/up): its
+    /// estimate at its last pulse minus the scaled motion since (IROS eq. 5 applied to
+    /// the mean only). `None` before its mixture is initialized.
+    pub fn position_now(&self) -> Option<Vec3> {
+        let e = self.filter.estimate()?;
+        let r = rotation_from_rpy(&self.rpy_last);
+        let moved = r * (self.pending.d.translation * e.scale + self.pending.d.absolute);
+        let p = e.p - moved;
+        p.iter().all(|v| v.is_finite()).then_some(p)
+    }
+}
+
+/// The fixed set of victim slots (see the module docs for the memory budget).
+#[derive(Debug, Clone)]
+pub struct VictimBank {
+    slots: [Victim; MAX_VICTIMS],
+}
+
+impl VictimBank {
+    /// An empty bank whose filters use `cfg`, or `InvalidConfig`.
+    pub fn new(cfg: SogConfig) -> Result<Self, EstimateError> {
+        let v = Victim {
+            src: None,
+            filter: VictimSog::new(cfg)?,
+            pending: Pending::zero(),
+            last_t: 0.0,
+            rpy_last: Rpy::zeros(),
+            active: false,
+            marked: false,
+            pulses: 0,
+        };
+        Ok(Self {
+            slots: [v.clone(), v.clone(), v.clone(), v],
+        })
+    }
+
+    /// Empties every slot.
+    pub fn reset(&mut self) {
+        for v in self.slots.iter_mut() {
+            v.filter.reset();
+            v.pending = Pending::zero();
+            v.active = false;
+            v.marked = false;
+            v.pulses = 0;
+        }
+    }
+
+    /// The slots that hold a victim, with their slot index (the list number − 1).
+    pub fn active(&self) -> impl Iterator<Item = (usize, &Victim)> + '_ {
+        self.slots.iter().enumerate().filter(|(_, v)| v.active)
+    }
+
+    /// Number of victims in the list.
+    pub fn len(&self) -> usize {
+        self.active().count()
+    }
+
+    /// Whether the list is empty.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The filter of slot `i` (empty when the slot is free; slot 0's for a bad index).
+    pub fn filter(&self, i: usize) -> &VictimSog {
+        let v = self.slots.get(i).unwrap_or(&self.slots[0]);
+        &v.filter
+    }
+
+    /// The victim in slot `i`, if any.
+    pub fn get(&self, i: usize) -> Option<&Victim> {
+        self.slots.get(i).filter(|v| v.active)
+    }
+
+    /// The slot for a pulse of `src` at `t`: its victim's, else a free one (a slot whose
+    /// unmarked victim was silent for [`LOST_S`] is free again). `None`: all taken.
+    pub fn slot_for(&self, src: Option<u8>, t: f32) -> Option<usize> {
+        if let Some(i) = self.slots.iter().position(|v| v.active && v.src == src) {
+            return Some(i);
+        }
+        self.slots
+            .iter()
+            .position(|v| !v.active)
+            .or_else(|| self.slots.iter().position(|v| self.lost(v, t)))
+    }
+
+    fn lost(&self, v: &Victim, t: f32) -> bool {
+        v.active && !v.marked && t - v.last_t > LOST_S
+    }
+
+    /// Drops the unmarked victims not heard since `t − LOST_S`; returns how many.
+    pub fn drop_lost(&mut self, t: f32) -> usize {
+        let mut n = 0;
+        for i in 0..MAX_VICTIMS {
+            if let Some(v) = self.slots.get(i)
+                && self.lost(v, t)
+                && let Some(v) = self.slots.get_mut(i)
+            {
+                v.active = false;
+                n += 1;
+            }
+        }
+        n
+    }
+
+    /// One pulse of `src` in slot `i` (from [`VictimBank::slot_for`]): the motion
+    /// interval `d` (closed at this pulse, walking `distance_m`) is composed onto every
+    /// victim's pending motion, slot `i`'s filter steps with its own, and its pending
+    /// motion restarts. On error nothing changes. Returns the step's report and the
+    /// pending motion the victim was stepped with.
+    pub fn step(
+        &mut self,
+        i: usize,
+        src: Option<u8>,
+        d: &Displacement,
+        distance_m: f32,
+        attitude: &Attitude,
+        pulse: &Pulse,
+    ) -> Result<(StepReport, Pending), EstimateError> {
+        let mut pend = [Pending::zero(); MAX_VICTIMS];
+        for (p, v) in pend.iter_mut().zip(self.slots.iter()) {
+            if v.active {
+                *p = v
+                    .pending
+                    .then(d, distance_m)
+                    .ok_or(EstimateError::OutOfRange)?;
+            }
+        }
+        let own = pend.get(i).copied().ok_or(EstimateError::InvalidConfig)?;
+        let slot = self.slots.get_mut(i).ok_or(EstimateError::InvalidConfig)?;
+        if !(slot.active && slot.src == src) {
+            // A new victim (or a lost one's slot taken over): a fresh mixture.
+            let mut fresh = slot.filter.clone();
+            fresh.reset();
+            let report = fresh.step(&own.d, attitude, pulse)?;
+            slot.filter = fresh;
+            slot.src = src;
+            slot.marked = false;
+            slot.pulses = 0;
+            slot.active = true;
+            return Ok(self.commit(i, pend, attitude, pulse.t, report, own));
+        }
+        let report = slot.filter.step(&own.d, attitude, pulse)?;
+        Ok(self.commit(i, pend, attitude, pulse.t, report, own))
+    }
+
+    fn commit(
+        &mut self,
+        i: usize,
+        pend: [Pending; MAX_VICTIMS],
+        attitude: &Attitude,
+        t: f32,
+        report: StepReport,
+        own: Pending,
+    ) -> (StepReport, Pending) {
+        for (j, (v, p)) in self.slots.iter_mut().zip(pend).enumerate() {
+            if j == i {
+                v.pending = Pending::zero();
+                v.last_t = t;
+                v.rpy_last = attitude.rpy;
+                v.pulses = v.pulses.saturating_add(1);
+            } else if v.active {
+                v.pending = p;
+            }
+        }
+        (report, own)
+    }
+
+    /// Marks the victim in slot `i` as found; `false` if there is none.
+    pub fn mark(&mut self, i: usize) -> bool {
+        match self.slots.get_mut(i) {
+            Some(v) if v.active => {
+                v.marked = true;
+                true
+            }
+            _ => false,
+        }
+    }
+
+    /// The nearest unmarked victim (horizontal distance now) with an estimate.
+    pub fn nearest_unmarked(&self) -> Option<(usize, f32)> {
+        self.active()
+            .filter(|(_, v)| !v.marked)
+            .filter_map(|(i, v)| v.position_now().map(|p| (i, p.xy().norm())))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+    }
+}
+
+/// The mark button: an active-low push button (pull-up, closes to ground) read through
+/// `embedded_hal::digital::InputPin` and debounced by polling.
+#[derive(Debug)]
+pub struct MarkButton<P> {
+    pin: P,
+    /// Consecutive polls that read "pressed".
+    low: u8,
+    /// The current press was already reported.
+    reported: bool,
+}
+
+impl<P: embedded_hal::digital::InputPin> MarkButton<P> {
+    /// Polls "pressed" in a row that make a press (30 ms at the 100 Hz IMU tick: longer
+    /// than a switch's bounce, far shorter than a deliberate press).
+    pub const DEBOUNCE_POLLS: u8 = 3;
+
+    /// A button on `pin`.
+    pub fn new(pin: P) -> Self {
+        Self {
+            pin,
+            low: 0,
+            reported: false,
+        }
+    }
+
+    /// Reads the pin once; `true` exactly once per press. A read error counts as released.
+    pub fn poll(&mut self) -> bool {
+        if self.pin.is_low().unwrap_or(false) {
+            self.low = self.low.saturating_add(1);
+            if self.low >= Self::DEBOUNCE_POLLS && !self.reported {
+                self.reported = true;
+                return true;
+            }
+        } else {
+            self.low = 0;
+            self.reported = false;
+        }
+        false
+    }
+
+    /// Gives the pin back.
+    pub fn release(self) -> P {
+        self.pin
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::frame::rpy_from_rotation;
+
+    #[test]
+    fn mark_button_debounces_and_reports_once_per_press() {
+        use embedded_hal_mock::eh1::digital::{Mock, State, Transaction};
+        let reads = [
+            State::Low,  // bounce
+            State::High, //
+            State::Low,
+            State::Low,
+            State::Low, // pressed: reported here
+            State::Low,
+            State::Low, // held: not again
+            State::High,
+            State::Low,
+            State::Low,
+            State::Low, // second press
+        ];
+        let tx: Vec<Transaction> = reads.iter().map(|s| Transaction::get(*s)).collect();
+        let mut b = MarkButton::new(Mock::new(&tx));
+        let got: Vec<bool> = reads.iter().map(|_| b.poll()).collect();
+        let presses: Vec<usize> = got
+            .iter()
+            .enumerate()
+            .filter(|(_, p)| **p)
+            .map(|(i, _)| i)
+            .collect();
+        assert_eq!(presses, vec![4, 10]);
+        b.release().done();
+    }
+
+    fn disp(t: [f32; 3], r: [f32; 3], st: f32, sr: f32) -> Displacement {
+        Displacement::with_sigmas(Vec3::from(t), Rpy::from(r), st, sr)
+    }
+
+    /// f64 reference of the composed mean.
+    fn compose_mean_f64(a: &[f64; 6], b: &[f64; 6]) -> [f64; 6] {
+        let ra = rot64(&[a[3], a[4], a[5]]);
+        let rb = rot64(&[b[3], b[4], b[5]]);
+        let t = nalgebra::Vector3::new(a[0], a[1], a[2])
+            + ra * nalgebra::Vector3::new(b[0], b[1], b[2]);
+        let r = ra * rb;
+        let pitch = (-r[(2, 0)]).asin();
+        let roll = r[(2, 1)].atan2(r[(2, 2)]);
+        let yaw = r[(1, 0)].atan2(r[(0, 0)]);
+        [t.x, t.y, t.z, roll, pitch, yaw]
+    }
+
+    fn rot64(rpy: &[f64; 3]) -> nalgebra::Matrix3<f64> {
+        let (sr, cr) = rpy[0].sin_cos();
+        let (sp, cp) = rpy[1].sin_cos();
+        let (sy, cy) = rpy[2].sin_cos();
+        let rx = nalgebra::Matrix3::new(1.0, 0.0, 0.0, 0.0, cr, -sr, 0.0, sr, cr);
+        let ry = nalgebra::Matrix3::new(cp, 0.0, sp, 0.0, 1.0, 0.0, -sp, 0.0, cp);
+        let rz = nalgebra::Matrix3::new(cy, -sy, 0.0, sy, cy, 0.0, 0.0, 0.0, 1.0);
+        rz * ry * rx
+    }
+
+    #[test]
+    fn composition_matches_f64_and_finite_difference_covariance() {
+        let a = disp([1.2, -0.3, 0.05], [0.05, -0.08, 0.6], 0.1, 0.03);
+        let b = disp([0.8, 0.4, -0.02], [-0.03, 0.1, -0.4], 0.2, 0.05);
+        let c = compose(&a, &b).unwrap();
+        let a64: [f64; 6] = core::array::from_fn(|i| {
+            f64::from(if i < 3 {
+                a.translation[i]
+            } else {
+                a.rotation[i - 3]
+            })
+        });
+        let b64: [f64; 6] = core::array::from_fn(|i| {
+            f64::from(if i < 3 {
+                b.translation[i]
+            } else {
+                b.rotation[i - 3]
+            })
+        });
+        let m = compose_mean_f64(&a64, &b64);
+        for (i, want) in m.iter().enumerate() {
+            let got = f64::from(if i < 3 {
+                c.translation[i]
+            } else {
+                c.rotation[i - 3]
+            });
+            assert!((got - want).abs() < 1e-5, "mean {i}: {got} vs {want}");
+        }
+        // Covariance: finite-difference Jacobians of the f64 composition.
+        let h = 1e-6;
+        let mut ja = nalgebra::SMatrix::<f64, 6, 6>::zeros();
+        let mut jb = nalgebra::SMatrix::<f64, 6, 6>::zeros();
+        for k in 0..6 {
+            let (mut ap, mut am, mut bp, mut bm) = (a64, a64, b64, b64);
+            ap[k] += h;
+            am[k] -= h;
+            bp[k] += h;
+            bm[k] -= h;
+            let (fap, fam) = (compose_mean_f64(&ap, &b64), compose_mean_f64(&am, &b64));
+            let (fbp, fbm) = (compose_mean_f64(&a64, &bp), compose_mean_f64(&a64, &bm));
+            for r in 0..6 {
+                ja[(r, k)] = (fap[r] - fam[r]) / (2.0 * h);
+                jb[(r, k)] = (fbp[r] - fbm[r]) / (2.0 * h);
+            }
+        }
+        let qa = a.cov.cast::<f64>();
+        let qb = b.cov.cast::<f64>();
+        let want = ja * qa * ja.transpose() + jb * qb * jb.transpose();
+        for r in 0..6 {
+            for k in 0..6 {
+                let got = f64::from(c.cov[(r, k)]);
+                assert!(
+                    (got - want[(r, k)]).abs() < 1e-5 + 1e-3 * want[(r, k)].abs(),
+                    "cov ({r},{k}): {got} vs {}",
+                    want[(r, k)]
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn zero_is_the_identity_and_absolute_parts_rotate() {
+        let mut a = disp(
+            [1.0, 2.0, 0.0],
+            [0.0, 0.0, core::f32::consts::FRAC_PI_2],
+            0.1,
+            0.02,
+        );
+        a.absolute = Vec3::new(0.0, 0.0, 0.3);
+        let z = Displacement::zero();
+        let left = compose(&z, &a).unwrap();
+        let right = compose(&a, &z).unwrap();
+        for c in [left, right] {
+            assert!((c.translation - a.translation).norm() < 1e-6);
+            assert!((c.rotation - a.rotation).norm() < 1e-6);
+            assert!((c.cov - a.cov).norm() < 1e-6);
+        }
+        // b's absolute part along its x axis is along a's y axis after a 90° yaw.
+        let mut b = Displacement::zero();
+        b.absolute = Vec3::new(0.5, 0.0, 0.0);
+        let c = compose(&a, &b).unwrap();
+        assert!((c.absolute - Vec3::new(0.0, 0.5, 0.3)).norm() < 1e-6);
+        let nan = disp([f32::NAN, 0.0, 0.0], [0.0; 3], 0.1, 0.1);
+        assert!(compose(&a, &nan).is_none());
+        // Composing many small motions equals their f32 sum of rotations about z.
+        let step = disp([0.5, 0.0, 0.0], [0.0, 0.0, 0.1], 0.0, 0.0);
+        let mut p = Pending::zero();
+        for _ in 0..10 {
+            p = p.then(&step, 0.5).unwrap();
+        }
+        assert!((p.d.rotation.z - 1.0).abs() < 1e-5);
+        assert!((p.distance_m - 5.0).abs() < 1e-5);
+        let r = rpy_from_rotation(&rotation_from_rpy(&p.d.rotation));
+        assert!((r - p.d.rotation).norm() < 1e-5);
+    }
+}
