@@ -14,23 +14,22 @@
 //! ([`DisplayModel::list`]).
 //!
 //! # Memory: keep one instance, never move it
-//! The victim bank is ≈ 60 KB ([`crate::victims::MAX_VICTIMS`] mixtures of
+//! The victim bank is ≈ 85 KB ([`crate::victims::MAX_VICTIMS`] mixtures of
 //! [`crate::victims::VICTIM_CAPACITY`] components), so a
 //! [`Receiver`] must not be passed by value or copied around on the board (the stack is
-//! far smaller). The board keeps exactly one in a `static` in `.ccmram` (a `NOLOAD`
+//! far smaller). The board keeps exactly one in a `static` in `.uninit` SRAM (a `NOLOAD`
 //! section that the runtime does not zero: its owner initializes it):
 //!
 //! ```ignore
-//! #[unsafe(link_section = ".ccmram")]
+//! #[unsafe(link_section = ".uninit.RECEIVER")]
 //! static mut RECEIVER: MaybeUninit<Receiver> = MaybeUninit::uninit();
 //! // once, at start-up (the only place that touches the static):
 //! let rx: &'static mut Receiver = Receiver::emplace(unsafe { &mut *addr_of_mut!(RECEIVER) }, cfg)?;
 //! ```
 //!
 //! [`Receiver::emplace`] writes the new receiver straight into its slot. The pulse front
-//! end ([`Frontend`], ≈ 14 KB) is not part of the receiver, so the receiver alone fits
-//! the 64 KB CCM; the board keeps the front end in main SRAM and lends it to
-//! [`Receiver::on_adc_sample`].
+//! end ([`Frontend`], ≈ 14 KB) is not part of the receiver: the board keeps it and the
+//! ADC sample queue in the 64 KB CCM and lends it to [`Receiver::on_adc_sample`].
 //!
 //! # Errors
 //! Every input is checked; a refused input returns an [`AppError`] and leaves the
@@ -224,10 +223,17 @@ pub struct Receiver {
 
 impl Receiver {
     /// A receiver waiting for its first samples; `InvalidConfig` when the filter refuses
-    /// the configuration. On the board use [`Receiver::emplace`] instead (no 63 KB move).
+    /// the configuration. On the board use [`Receiver::emplace`] instead (no 88 KB move).
     pub fn new(cfg: AppConfig) -> Result<Self, AppError> {
-        Ok(Self {
-            bank: VictimBank::new(cfg.sog)?,
+        VictimSog::check_config(&cfg.sog)?;
+        Ok(Self::new_checked(cfg))
+    }
+
+    /// [`Receiver::new`] for a configuration already checked: infallible, so that
+    /// [`Receiver::emplace`] builds the receiver straight into its slot.
+    fn new_checked(cfg: AppConfig) -> Self {
+        Self {
+            bank: VictimBank::new_checked(cfg.sog),
             target: None,
             motion: Motion::new(cfg.motion),
             guidance: Guidance::new(cfg.guidance),
@@ -241,15 +247,18 @@ impl Receiver {
             overlap: false,
             stats: AppStats::default(),
             adc_epoch_s: 0.0,
-        })
+        }
     }
 
-    /// Builds a receiver in `slot` (e.g. a `static` in `.ccmram`) and returns it.
+    /// Builds a receiver in `slot` (e.g. a `static` in `.uninit` RAM) and returns it.
     pub fn emplace(
         slot: &mut MaybeUninit<Receiver>,
         cfg: AppConfig,
     ) -> Result<&mut Receiver, AppError> {
-        Ok(slot.write(Self::new(cfg)?))
+        // Checked first, then built infallibly into the slot: a `Result<Receiver>`
+        // temporary would put the whole ≈ 88 KB receiver on the stack.
+        VictimSog::check_config(&cfg.sog)?;
+        Ok(slot.write(Self::new_checked(cfg)))
     }
 
     /// Starts a new search with the same configuration.
@@ -624,9 +633,10 @@ mod tests {
     }
 
     #[test]
-    fn fits_in_the_core_coupled_ram_with_four_victims() {
+    fn fits_in_sram_beside_the_stack_with_four_victims() {
+        // 128 KB SRAM minus a 36 KB stack (high-water ≈ 25 KB in the QEMU soak).
         let bytes = core::mem::size_of::<Receiver>();
-        assert!(bytes <= 64 * 1024, "Receiver is {bytes} bytes");
+        assert!(bytes <= 92 * 1024, "Receiver is {bytes} bytes");
     }
 
     #[test]

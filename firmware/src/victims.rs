@@ -16,11 +16,15 @@
 //! two motions, with first-order covariance propagation.
 //!
 //! # Memory budget (STM32F405: 64 KB CCM + 128 KB SRAM)
-//! The receiver application (this bank included) stays in the 64 KB CCM, as the single
-//! filter did. [`MAX_VICTIMS`] = 4 slots (the front end's [`crate::frontend::MAX_TRACKS`])
-//! of [`VICTIM_CAPACITY`] = 56 components × 264 B: 59 136 B of components for a total
-//! of 224, against 240 for the former single filter (see `hal-sim/reports/multi.md` for
-//! the single-victim accuracy at this capacity).
+//! [`MAX_VICTIMS`] = 4 slots (the front end's [`crate::frontend::MAX_TRACKS`]) of
+//! [`VICTIM_CAPACITY`] = 80 components × 264 B: 84 480 B of components (320 in all).
+//! The receiver application (≈ 88 KB with this bank) lives in SRAM on the board; the ADC
+//! sample queue (32 KB) and the front end live in the 64 KB CCM instead, which leaves
+//! ≥ 36 KB of SRAM for the stack (high-water ≈ 25 KB, `hal-sim/reports/reliability.md`).
+//! 56 components per victim (all four in CCM) was tried first: a single victim's rescue
+//! lost accuracy (probe error median 0.088 → 0.097 m, max 0.71 → 0.87 m) and a 20 s
+//! transmitter silence mid-search broke the estimate (3.2 m final error, fault test
+//! `transmitter_off_shows_no_signal_keeps_the_estimate_and_recovers`), which 80 holds.
 
 use crate::Vec3;
 use crate::estimate::{
@@ -31,9 +35,9 @@ use nalgebra::SMatrix;
 
 /// Victims followed at once: one per front-end track.
 pub const MAX_VICTIMS: usize = crate::frontend::MAX_TRACKS;
-/// Components per victim's mixture (four of them fit the 64 KB CCM with the rest of
-/// the application).
-pub const VICTIM_CAPACITY: usize = 56;
+/// Components per victim's mixture (four of them and the rest of the application fit
+/// in SRAM beside a ≥ 36 KB stack; see the memory budget above).
+pub const VICTIM_CAPACITY: usize = 80;
 /// The per-victim filter.
 pub type VictimSog = SogFilter<VICTIM_CAPACITY>;
 /// An unmarked victim not heard for this long (s) is dropped from the list (its track
@@ -122,6 +126,21 @@ pub struct Victim {
 }
 
 impl Victim {
+    /// A free slot whose filter uses `cfg` (already checked by the bank).
+    #[inline(always)]
+    fn empty(cfg: SogConfig) -> Self {
+        Self {
+            src: None,
+            filter: VictimSog::new_checked(cfg),
+            pending: Pending::zero(),
+            last_t: 0.0,
+            rpy_last: Rpy::zeros(),
+            active: false,
+            marked: false,
+            pulses: 0,
+        }
+    }
+
     /// The front-end source of this victim (`None`: logs without source attribution).
     pub fn src(&self) -> Option<u8> {
         self.src
@@ -173,19 +192,25 @@ pub struct VictimBank {
 impl VictimBank {
     /// An empty bank whose filters use `cfg`, or `InvalidConfig`.
     pub fn new(cfg: SogConfig) -> Result<Self, EstimateError> {
-        let v = Victim {
-            src: None,
-            filter: VictimSog::new(cfg)?,
-            pending: Pending::zero(),
-            last_t: 0.0,
-            rpy_last: Rpy::zeros(),
-            active: false,
-            marked: false,
-            pulses: 0,
-        };
-        Ok(Self {
-            slots: [v.clone(), v.clone(), v.clone(), v],
-        })
+        VictimSog::check_config(&cfg)?;
+        Ok(Self::new_checked(cfg))
+    }
+
+    /// [`VictimBank::new`] for a configuration the filter accepted: infallible and built
+    /// slot by slot, so the ≈ 85 KB bank can be built in its final place (see
+    /// [`crate::app::Receiver::emplace`]) without a whole copy on the stack.
+    pub(crate) fn new_checked(cfg: SogConfig) -> Self {
+        // An array literal of element constructors (not `from_fn` or clones, which build
+        // each ≈ 21 KB element on the stack and copy it): the compiler writes each field
+        // straight into the destination.
+        Self {
+            slots: [
+                Victim::empty(cfg),
+                Victim::empty(cfg),
+                Victim::empty(cfg),
+                Victim::empty(cfg),
+            ],
+        }
     }
 
     /// Empties every slot.
@@ -259,7 +284,7 @@ impl VictimBank {
     /// One pulse of `src` in slot `i` (from [`VictimBank::slot_for`]): the motion
     /// interval `d` (closed at this pulse, walking `distance_m`) is composed onto every
     /// victim's pending motion, slot `i`'s filter steps with its own, and its pending
-    /// motion restarts. On error nothing changes. Returns the step's report and the
+    /// motion restarts. On error nothing changes (except that a free slot taken for a new victim stays free and empty). Returns the step's report and the
     /// pending motion the victim was stepped with.
     pub fn step(
         &mut self,
@@ -282,11 +307,12 @@ impl VictimBank {
         let own = pend.get(i).copied().ok_or(EstimateError::InvalidConfig)?;
         let slot = self.slots.get_mut(i).ok_or(EstimateError::InvalidConfig)?;
         if !(slot.active && slot.src == src) {
-            // A new victim (or a lost one's slot taken over): a fresh mixture.
-            let mut fresh = slot.filter.clone();
-            fresh.reset();
-            let report = fresh.step(&own.d, attitude, pulse)?;
-            slot.filter = fresh;
+            // A new victim (or a lost one's slot taken over): a fresh mixture, reset in
+            // place (a copy of the ≈ 21 KB filter would not fit the board's stack). The
+            // slot was free (`slot_for`), so a refused first pulse leaves it free.
+            slot.active = false;
+            slot.filter.reset();
+            let report = slot.filter.step(&own.d, attitude, pulse)?;
             slot.src = src;
             slot.marked = false;
             slot.pulses = 0;

@@ -63,7 +63,7 @@ const fn parse_u32(s: &str) -> u32 {
     n
 }
 
-/// The receiver (≈ 63 KB) in `.uninit` RAM: never on the stack, never moved.
+/// The receiver (≈ 88 KB) in `.uninit` RAM: never on the stack, never moved.
 #[unsafe(link_section = ".uninit.RECEIVER")]
 static mut RECEIVER: MaybeUninit<Receiver> = MaybeUninit::uninit();
 

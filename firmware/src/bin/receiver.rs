@@ -19,12 +19,15 @@
 //! display. The ADC's sample count is the time base of everything (8 kSPS), so the
 //! pulse times of the front end and the IMU times share one clock. Each record is
 //! written to the session log *before* the application processes it, so a fault in the
-//! estimator never loses recorded data. The receiver state (~64 KB, the SOGs filter) lives
-//! in the core-coupled RAM (`.ccmram`, see `memory.x`).
+//! estimator never loses recorded data. Memory: the receiver state (≈ 88 KB: four victims'
+//! SOGs mixtures, see `firmware::victims`) lives in SRAM (`.uninit`, never on the stack,
+//! never moved); the ADC sample queue (32 KB) and the pulse front end live in the
+//! core-coupled RAM (`.ccmram`, see `memory.x`), which the DMA-free design never needs
+//! to reach from a bus master.
 #![no_std]
 #![no_main]
-// Two narrow uses, each with its SAFETY note: the `.ccmram` static of the receiver
-// (taken once, in `main`, before interrupts are enabled) and nothing else.
+// Narrow uses, each with its SAFETY note: the statics of the receiver, the sample queue
+// and the front end (each taken once, in `main`, before interrupts are enabled).
 #![allow(unsafe_code)]
 
 use core::cell::RefCell;
@@ -100,10 +103,16 @@ static SAMPLER: Mutex<RefCell<Option<Sampler>>> = Mutex::new(RefCell::new(None))
 static SAMPLES: AtomicU32 = AtomicU32::new(0);
 static DROPPED: AtomicU32 = AtomicU32::new(0);
 
-/// The application state in core-coupled RAM (not zeroed by the runtime: initialized
-/// with `Receiver::emplace` before use).
-#[unsafe(link_section = ".ccmram")]
+/// The application state in SRAM (not zeroed by the runtime: initialized with
+/// `Receiver::emplace` before use).
+#[unsafe(link_section = ".uninit.RECEIVER")]
 static mut RECEIVER: MaybeUninit<Receiver> = MaybeUninit::uninit();
+/// The ADC sample queue in core-coupled RAM (initialized in `main` before use).
+#[unsafe(link_section = ".ccmram")]
+static mut QUEUE: MaybeUninit<Queue<Sample, QUEUE_LEN>> = MaybeUninit::uninit();
+/// The pulse front end in core-coupled RAM (initialized in `main` before use).
+#[unsafe(link_section = ".ccmram")]
+static mut FRONTEND: MaybeUninit<Frontend> = MaybeUninit::uninit();
 
 #[interrupt]
 fn EXTI9_5() {
@@ -198,7 +207,7 @@ fn main() -> ! {
     .into_buffered_graphics_mode();
     let screen_ok = screen.init().is_ok();
 
-    // The application in CCM.
+    // The application in SRAM.
     let cfg = AppConfig::new(earth, STEP_LENGTH_M);
     // SAFETY: the only reference ever taken to RECEIVER, here, once, before any interrupt
     // that could run is enabled; no interrupt touches it.
@@ -208,14 +217,16 @@ fn main() -> ! {
     };
     let fe_cfg = FrontendConfig::default();
     let rate = fe_cfg.sample_rate_hz;
-    let Ok(mut frontend) = Frontend::new(fe_cfg) else {
+    let Ok(new_frontend) = Frontend::new(fe_cfg) else {
         defmt::panic!("front-end configuration refused");
     };
+    // SAFETY: the only reference ever taken to FRONTEND, here, once; no interrupt uses it.
+    let frontend = unsafe { &mut *core::ptr::addr_of_mut!(FRONTEND) }.write(new_frontend);
 
     // ADC samples flow through the queue from the DRDY interrupt.
-    let Some(queue) = cortex_m::singleton!(: Queue<Sample, QUEUE_LEN> = Queue::new()) else {
-        defmt::panic!("queue taken twice");
-    };
+    // SAFETY: the only reference ever taken to QUEUE, here, once, before the DRDY
+    // interrupt (its producer's only user) is unmasked.
+    let queue = unsafe { &mut *core::ptr::addr_of_mut!(QUEUE) }.write(Queue::new());
     let (producer, mut consumer): (Producer<'static, Sample>, Consumer<'static, Sample>) =
         queue.split();
     // The mark button: flags the victim being guided to as found.

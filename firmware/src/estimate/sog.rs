@@ -50,17 +50,32 @@ pub struct SogFilter<const N: usize> {
 impl<const N: usize> SogFilter<N> {
     /// A filter with the given configuration, or `InvalidConfig`.
     pub fn new(config: SogConfig) -> Result<Self, EstimateError> {
+        Self::check_config(&config)?;
+        Ok(Self::new_checked(config))
+    }
+
+    /// Whether [`SogFilter::new`] accepts `config` at this capacity (`InvalidConfig` if
+    /// not), without building the filter.
+    pub fn check_config(config: &SogConfig) -> Result<(), EstimateError> {
         config.validate()?;
         if N < 8 {
             return Err(EstimateError::InvalidConfig);
         }
-        Ok(Self {
+        Ok(())
+    }
+
+    /// [`SogFilter::new`] for a configuration [`SogFilter::check_config`] accepted:
+    /// infallible, so a caller can build the filter straight into its final place
+    /// (a `Result` of a ≈ 20 KB filter would be built on the stack first).
+    #[inline(always)]
+    pub(crate) fn new_checked(config: SogConfig) -> Self {
+        Self {
             config,
             comps: Vec::new(),
             initialized: false,
             inconsistent_pulses: 0,
             last_t: None,
-        })
+        }
     }
 
     /// The configuration.
