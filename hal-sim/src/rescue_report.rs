@@ -15,7 +15,8 @@
 //! victim at the rescuer's speed. The same numbers from the start are given too (the
 //! primary-search part is straight toward the victim, so it is ideal on both sides).
 use crate::accuracy::stats;
-use crate::closed_loop::{self, ClosedLoopConfig, Outcome, Policy, StartMode};
+use crate::closed_loop::{self, ClosedLoopConfig, Outcome, Policy, PulseRow, StartMode};
+use firmware::guidance::{GuidanceConfig, Status};
 use std::fmt::Write as _;
 use std::time::Instant;
 
@@ -35,6 +36,16 @@ pub struct Args {
     /// (the report before the lift existed).
     #[arg(long)]
     pub no_lift: bool,
+    /// First seed (seeds first_seed..first_seed+tries): a separate range checks that a
+    /// change was not tuned to seeds 1..=100.
+    #[arg(long, default_value_t = 1)]
+    pub first_seed: u64,
+    /// Run only the SOG case with calibrated step length and the lift (diagnostics).
+    #[arg(long)]
+    pub calibrated_only: bool,
+    /// Print every pulse of this seed's rescue (the first case run) to stderr.
+    #[arg(long)]
+    pub trace: Option<u64>,
 }
 
 /// The compared searches.
@@ -136,7 +147,104 @@ pub struct Rescue {
     pub failed: bool,
     /// Lifts of the receiver made when asked.
     pub lifts: u32,
+    /// Transmitter pulses from the first received one to "probe here", per phase of the
+    /// search (see [`Phase`]).
+    pub phases: [u32; Phase::COUNT],
 }
+
+/// What the display told the rescuer between two pulses (the phase-time breakdown).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Phase {
+    /// Pulse not received, or "no signal".
+    NoSignal,
+    /// Following the flux line.
+    FluxLine,
+    /// Localized, walking to the mean (2 m or more to go).
+    ToMean,
+    /// Fine search, stepping toward the mean (less than 2 m to go, not over it yet).
+    FineApproach,
+    /// Fine search over the mean (within `max(probe radius, σ_h)`): bracketing, waiting
+    /// for the belief to shrink to the probe radius.
+    OverMean,
+    /// Standing for a lift of the receiver.
+    Lift,
+}
+
+impl Phase {
+    /// Number of phases.
+    pub const COUNT: usize = 6;
+    /// All phases, in report order.
+    pub const ALL: [Phase; Self::COUNT] = [
+        Phase::NoSignal,
+        Phase::FluxLine,
+        Phase::ToMean,
+        Phase::FineApproach,
+        Phase::OverMean,
+        Phase::Lift,
+    ];
+
+    fn label(self) -> &'static str {
+        match self {
+            Phase::NoSignal => "not received / no signal",
+            Phase::FluxLine => "flux line",
+            Phase::ToMean => "localized, walking to the mean (≥ 2 m)",
+            Phase::FineApproach => "fine search, approaching (< 2 m)",
+            Phase::OverMean => "fine search, over the mean (bracketing, waiting to probe)",
+            Phase::Lift => "lift",
+        }
+    }
+
+    /// The phase shown by one pulse's display.
+    fn of(row: &PulseRow) -> Phase {
+        let d = &row.display;
+        let probe_radius = f64::from(GuidanceConfig::default().probe_radius_m);
+        match d.status {
+            Status::NoSignal => Phase::NoSignal,
+            Status::FluxLine => Phase::FluxLine,
+            _ if d.lift => Phase::Lift,
+            Status::Localized | Status::Probe => {
+                let h = d.horizontal_m.map_or(f64::MAX, f64::from);
+                let sig = d.uncertainty_m.map_or(0.0, f64::from);
+                let walk = d.walk_m.map_or(f64::MAX, f64::from);
+                if h <= probe_radius.max(sig) {
+                    Phase::OverMean
+                } else if walk < FINE_WALK_M {
+                    Phase::FineApproach
+                } else {
+                    Phase::ToMean
+                }
+            }
+        }
+    }
+
+    /// Pulses per phase from the first received pulse to "probe here" (`steps` of them).
+    fn breakdown(o: &Outcome) -> [u32; Self::COUNT] {
+        let mut n = [0u32; Self::COUNT];
+        let Some(t0) = o.first_rx_t else {
+            return n;
+        };
+        // Unfinished: every pulse after the first reception.
+        let steps = o
+            .pulses_to_probe
+            .unwrap_or(((o.end_t - t0) / o.period_s).floor().max(0.0) as u64);
+        let mut heard = 0u64;
+        for r in o.rows.iter().take(usize::try_from(steps).unwrap_or(usize::MAX)) {
+            let phase = Phase::of(r);
+            if let Some(k) = Phase::ALL.iter().position(|p| *p == phase)
+                && let Some(c) = n.get_mut(k)
+            {
+                *c += 1;
+            }
+            heard += 1;
+        }
+        n[0] += u32::try_from(steps.saturating_sub(heard)).unwrap_or(u32::MAX);
+        n
+    }
+}
+
+/// Remaining walk below which the rescuer model goes step by step (m), as in
+/// [`ClosedLoopConfig::new`].
+const FINE_WALK_M: f64 = 2.0;
 
 impl Rescue {
     /// Summarizes one closed-loop outcome.
@@ -168,6 +276,7 @@ impl Rescue {
             reinitializations: o.reinitializations,
             failed,
             lifts: o.lifts,
+            phases: Phase::breakdown(o),
         }
     }
 
@@ -183,10 +292,10 @@ pub fn run_one(case: Case, seed: u64) -> anyhow::Result<Rescue> {
     Ok(Rescue::from_outcome(case, &o, moment))
 }
 
-/// Runs `tries` seeded rescues of `case` in parallel (seeds 1..=tries).
-pub fn run_case(case: Case, tries: u64) -> anyhow::Result<Vec<Rescue>> {
+/// Runs `tries` seeded rescues of `case` in parallel (seeds `first..first + tries`).
+pub fn run_case(case: Case, first: u64, tries: u64) -> anyhow::Result<Vec<Rescue>> {
     use rayon::prelude::*;
-    (1..=tries)
+    (first..first + tries)
         .into_par_iter()
         .map(|seed| run_one(case, seed))
         .collect()
@@ -394,18 +503,58 @@ pub fn case_report(case: Case, runs: &[Rescue]) -> String {
         .take(5)
         .map(|r| {
             format!(
-                "seed {} ({:.2}×)",
+                "seed {} ({:.2}×; pulses per phase {:?})",
                 r.seed,
-                Rescue::ratio(r.steps, r.ideal_steps).unwrap_or(f64::NAN)
+                Rescue::ratio(r.steps, r.ideal_steps).unwrap_or(f64::NAN),
+                r.phases
             )
         })
         .collect();
+    if case != Case::DirectionalSearch {
+        s.push_str(&phase_table(runs));
+    }
     let _ = writeln!(
         s,
         "Largest errors: {}. Slowest: {}.\n",
         list.join(", "),
         slow.join(", ")
     );
+    s
+}
+
+/// Where the pulses from the first received one to "probe here" went, per phase.
+fn phase_table(runs: &[Rescue]) -> String {
+    let done: Vec<&Rescue> = runs.iter().filter(|r| !r.failed).collect();
+    let mut s = format!(
+        "\nPulses per phase, from the first received pulse to \"probe here\" (mean over the {} \
+         rescues that did not fail; the failures separately; per seed in the same order in \
+         the slowest list below):\n\n| phase | mean pulses | share | mean pulses, failures |\n|---|---|---|---|\n",
+        done.len()
+    );
+    let failed: Vec<&Rescue> = runs.iter().filter(|r| r.failed).collect();
+    let mean = |v: &[&Rescue], k: usize| {
+        if v.is_empty() {
+            0.0
+        } else {
+            v.iter()
+                .map(|r| f64::from(r.phases.get(k).copied().unwrap_or(0)))
+                .sum::<f64>()
+                / v.len() as f64
+        }
+    };
+    let total: f64 = (0..Phase::COUNT).map(|k| mean(&done, k)).sum();
+    for (k, p) in Phase::ALL.iter().enumerate() {
+        let m = mean(&done, k);
+        let _ = writeln!(
+            s,
+            "| {} | {m:.1} | {:.0} % | {:.1} |",
+            p.label(),
+            100.0 * m / total.max(1e-9),
+            mean(&failed, k)
+        );
+    }
+    let ideal = done.iter().filter_map(|r| r.ideal_steps).sum::<f64>() / done.len().max(1) as f64;
+    let _ = writeln!(s, "| total (ideal {ideal:.1}) | {total:.1} | 100 % | |\n");
     s
 }
 
@@ -473,15 +622,63 @@ median / mean.\n\n\
     s
 }
 
+/// Prints every pulse of one rescue (diagnostics: where the pulses go).
+fn trace(case: Case, seed: u64) -> anyhow::Result<()> {
+    let o = closed_loop::run(&case.config(seed), &mut |r, rx| {
+        let d = &r.display;
+        let e = rx.estimate();
+        eprintln!(
+            "t {:7.2} {:10} true_d {:6.2} est_h {:>6} sig_h {:>6} walk {:>6} err_h {:>6} \
+             ncomp {:2} lift {} scale {:>6} depth {:>5} tilt_err_deg {:.2} {:.2} dr_sig {:.3} dr_steps {}",
+            r.t,
+            r.status,
+            r.true_distance_m,
+            d.horizontal_m.map_or("-".into(), |v| format!("{v:.2}")),
+            d.uncertainty_m.map_or("-".into(), |v| format!("{v:.3}")),
+            d.walk_m.map_or("-".into(), |v| format!("{v:.2}")),
+            r.error_h_m.map_or("-".into(), |v| format!("{v:.3}")),
+            r.n_components,
+            u8::from(d.lift),
+            e.map_or("-".into(), |e| format!("{:.3}", e.scale)),
+            d.depth_m.map_or("-".into(), |v| format!("{v:.2}")),
+            (f64::from(rx.motion().attitude().0.x) - r.true_rpy[0]).to_degrees(),
+            (f64::from(rx.motion().attitude().0.y) - r.true_rpy[1]).to_degrees(),
+            r.displacement_sigma_h_m,
+            r.displacement_steps,
+        );
+    })?;
+    eprintln!(
+        "seed {seed}: victim {:?}, first rx {:?} at t {:?}, probe at {:?}, error {:?}",
+        o.victim, o.first_rx_p, o.first_rx_t, o.probe_t, o.error_h_m
+    );
+    Ok(())
+}
+
 /// Runs every case and writes the report.
 pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
     use std::io::Write as _;
+    if let Some(seed) = args.trace {
+        let case = if args.calibrated_only || !args.no_lift {
+            Case::SogCalibrated
+        } else {
+            Case::SogCalibratedNoLift
+        };
+        return trace(case, seed);
+    }
     let mut report = format!(
-        "## Closed-loop rescues (`cargo run -p hal-sim --release -- rescue-report --tries {}`)\n\n{}\n\n",
-        args.tries, PROTOCOL
+        "## Closed-loop rescues (`cargo run -p hal-sim --release -- rescue-report --tries {}{}`)\n\n{}\n\n",
+        args.tries,
+        if args.first_seed == 1 {
+            String::new()
+        } else {
+            format!(" --first-seed {}", args.first_seed)
+        },
+        PROTOCOL
     );
     let mut all = Vec::new();
-    let cases: &[Case] = if args.no_lift {
+    let cases: &[Case] = if args.calibrated_only {
+        &[Case::SogCalibrated]
+    } else if args.no_lift {
         &Case::NO_LIFT
     } else {
         &Case::ALL
@@ -489,7 +686,7 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
     for &case in cases {
         let t0 = Instant::now();
         eprintln!("rescue-report: {case:?}, {} tries …", args.tries);
-        let runs = run_case(case, args.tries)?;
+        let runs = run_case(case, args.first_seed, args.tries)?;
         eprintln!(
             "rescue-report: {case:?} done in {:.1} s",
             t0.elapsed().as_secs_f64()
@@ -497,7 +694,7 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
         report.push_str(&case_report(case, &runs));
         all.extend(runs);
     }
-    if !args.no_lift {
+    if !args.no_lift && !args.calibrated_only {
         report.push_str(&lift_gain(&all));
     }
     if let Some(path) = &args.runs {
