@@ -767,16 +767,14 @@ mod tests {
         assert_eq!(a.status, Status::Localized);
         let (ba, bb) = (a.bearing.unwrap_or(9.0), b.bearing.unwrap_or(9.0));
         assert!(wrap_pi(ba - bb).abs() < 1e-5, "{ba} {bb}");
-        assert!(a.walk_m.is_some_and(|w| (w - 0.6).abs() < 1e-4 || (w - 0.4).abs() < 1e-4));
+        assert!(
+            a.walk_m
+                .is_some_and(|w| (w - 0.6).abs() < 1e-4 || (w - 0.4).abs() < 1e-4)
+        );
         // At the bracketing point (0.5 m beyond the mean): back across the mean to the
         // other side.
         let side = [libm::cosf(ba), libm::sinf(ba)];
-        let at = |k: f32| {
-            Some(est(
-                Vec3::new(0.1 - k * side[0], -k * side[1], -2.0),
-                0.4,
-            ))
-        };
+        let at = |k: f32| Some(est(Vec3::new(0.1 - k * side[0], -k * side[1], -2.0), 0.4));
         let c = g.update(&input(h, 0.5, 0.0, at(b.walk_m.unwrap_or(0.0))));
         let bc = c.bearing.unwrap_or(9.0);
         assert!((wrap_pi(bc - ba).abs() - PI).abs() < 0.05, "{ba} {bc}");
