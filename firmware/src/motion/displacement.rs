@@ -358,4 +358,48 @@ mod tests {
         let e = d.cov.symmetric_eigenvalues();
         assert!(e.min() > -1e-9, "{e:?}");
     }
+
+    #[test]
+    fn standing_and_turning_without_steps_have_their_own_noise() {
+        let noise = PdrNoise {
+            translation_floor_m: 0.0,
+            heading_common_sigma_rad: 0.0,
+            ..PdrNoise::default()
+        };
+        let r0 = Mat3::identity();
+        let horizontal = |d: &Displacement| d.cov[(0, 0)] + d.cov[(1, 1)];
+        // No step, not known to be standing: a start or stop may have moved the device.
+        let iv = Interval::new(0.0, r0);
+        let d = iv.close(1.0, &r0, &noise, 0.0);
+        let u = noise.undetected_motion_m;
+        assert!(
+            (horizontal(&d) - 2.0 * u * u).abs() < 1e-6,
+            "{}",
+            horizontal(&d)
+        );
+        // Stood through: the hand's sway only.
+        let mut iv = Interval::new(0.0, r0);
+        iv.mark_standing();
+        let d = iv.close(1.0, &r0, &noise, 0.0);
+        let s = noise.standing_motion_m;
+        assert!(
+            (horizontal(&d) - 2.0 * s * s).abs() < 1e-6,
+            "{}",
+            horizontal(&d)
+        );
+        assert!(d.translation.norm() < 1e-6);
+        // A turn-around on the spot: the device 0.35 m ahead of the turning axis may
+        // have moved by the chord 2 L sin(θ/2) = 0.7 m (per horizontal axis), not the arc.
+        let rk = rotation_from_rpy(&Rpy::new(0.0, 0.0, core::f32::consts::PI - 1e-3));
+        let mut iv = Interval::new(0.0, r0);
+        iv.mark_standing();
+        let d = iv.close(1.0, &rk, &noise, 0.0);
+        let chord = 2.0 * noise.lever_arm_m * libm::sinf(0.5 * (core::f32::consts::PI - 1e-3));
+        let expect = 2.0 * (chord * chord + s * s);
+        assert!(
+            (horizontal(&d) - expect).abs() < 1e-3 * expect,
+            "{} {expect}",
+            horizontal(&d)
+        );
+    }
 }
