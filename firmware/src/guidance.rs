@@ -79,9 +79,15 @@ pub struct GuidanceConfig {
     /// The mixture counts as concentrated when its largest horizontal σ is at most this
     /// fraction of the horizontal distance to its mean.
     pub concentrated_ratio: f32,
-    /// Flux-line mode: flip the walking direction when |H| has not exceeded its best value
-    /// over this distance walked (m), the classical 5 m rule.
+    /// Flux-line mode: flip the walking direction when, over this distance walked (m),
+    /// |H| has not exceeded its best value and has fallen significantly below it (by
+    /// [`flip_margin_sigma`](Self::flip_margin_sigma) reading σ), the classical 5 m rule.
     pub flip_after_m: f32,
+    /// Significance of the decrease that flips the flux-line direction, in σ of one |H|
+    /// reading (`√(σ_bkg² + (k_sen |H|)²)`, ICRA 2006 eq. 10).
+    pub flip_margin_sigma: f32,
+    /// Sensor noise proportional to |H| (ICRA 2006 eq. 10), for the flip significance.
+    pub k_sen: f32,
     /// Horizontal distance (m) below which the fine search (depth display) starts.
     pub fine_search_m: f32,
     /// Probe radius (m): "probe here" needs `3σ_h` at most this.
@@ -119,6 +125,8 @@ impl Default for GuidanceConfig {
             go_to_mean_d2: 9.0,
             concentrated_ratio: 1.0,
             flip_after_m: 5.0,
+            flip_margin_sigma: 2.0,
+            k_sen: 0.03,
             fine_search_m: 3.0,
             probe_radius_m: 0.3,
             probe_confirm_pulses: 2,
@@ -195,8 +203,9 @@ pub struct Guidance {
     probe_count: u8,
     /// Pulses spent over the mean (bracketing).
     over_mean: u8,
-    /// Side of the next bracketing offset (±1).
-    bracket_side: f32,
+    /// Current bracketing offset direction from the mean (unit, horizontal, in `G`,
+    /// which is north-aligned, so it stays valid as the receiver moves).
+    bracket_dir: Option<[f32; 2]>,
     /// Latched probe.
     probing: bool,
     /// Pulses on which the lift was asked for.
@@ -216,7 +225,7 @@ impl Guidance {
             localized: false,
             probe_count: 0,
             over_mean: 0,
-            bracket_side: 1.0,
+            bracket_dir: None,
             probing: false,
             lift_pulses: 0,
         }
@@ -259,6 +268,7 @@ impl Guidance {
             self.probe_count = 0;
             self.over_mean = 0;
             self.lift_pulses = 0;
+            self.bracket_dir = None;
         }
         // Classical flux-line bookkeeping runs in every mode, so that a fallback from
         // the mean to the flux line starts with a sensible direction.
@@ -304,13 +314,25 @@ impl Guidance {
             raw
         };
         let n = self.smooth_h;
-        // Classical rule: if |H| has not grown over the last `flip_after_m`, turn around.
+        // Classical rule: if |H| has decreased over the last `flip_after_m`, turn around.
+        // "Decreased" must be significant: at the edge of reception one reading is
+        // ±σ_bkg on |H| ≈ 3…10 σ_bkg, and the best of many noisy readings lies above the
+        // true value, so "not grown" alone flips at random and traps the rescuer on a
+        // few metres of flux line. Walking the wrong way along a flux line makes |H|
+        // (∝ r⁻³) fall fast; near the dipole's equator either way leads in (the line is a
+        // loop r = L sin²θ), so holding the direction while |H| is inconclusive costs
+        // little.
+        let margin = self.cfg.flip_margin_sigma
+            * libm::sqrtf(
+                self.cfg.sigma_bkg * self.cfg.sigma_bkg
+                    + self.cfg.k_sen * self.cfg.k_sen * self.best_h * self.best_h,
+            );
         if n > self.best_h {
             self.best_h = n;
             self.walked_since_best = 0.0;
         } else {
             self.walked_since_best += walked;
-            if self.walked_since_best > self.cfg.flip_after_m {
+            if self.walked_since_best > self.cfg.flip_after_m && n < self.best_h - margin {
                 if let Some(d) = self.flux_dir.as_mut() {
                     d[0] = -d[0];
                     d[1] = -d[1];
@@ -366,7 +388,7 @@ impl Guidance {
 
     /// Localized: walk to the mean, bracket it, or probe.
     fn walk_to_mean(&mut self, e: &VictimEstimate, yaw: f32, out: &mut GuidanceOutput) {
-        let c = &self.cfg;
+        let c = self.cfg;
         let (axis, sigma_h) = horizontal_axis(&e.cov);
         let dist_h = libm::sqrtf(e.p.x * e.p.x + e.p.y * e.p.y);
         out.distance_m = Some(e.p.norm());
@@ -404,11 +426,11 @@ impl Guidance {
             out.status = Status::Probe;
         } else {
             out.status = Status::Localized;
+            let dir = self.bracket_direction(e, axis);
             if over && !sure {
                 // Bracket the mean along its most uncertain horizontal axis.
-                self.bracket_side = -self.bracket_side;
-                target[0] += axis[0] * c.bracket_m * self.bracket_side;
-                target[1] += axis[1] * c.bracket_m * self.bracket_side;
+                target[0] += dir[0] * c.bracket_m;
+                target[1] += dir[1] * c.bracket_m;
             }
         }
         let b = libm::atan2f(target[1], target[0]);
@@ -416,6 +438,32 @@ impl Guidance {
         out.walk_m = Some(if self.probing { 0.0 } else { walk });
         out.bearing = Some(b);
         out.arrow = Some(relative_arrow(b, yaw));
+    }
+}
+
+impl Guidance {
+    /// The side of the mean to bracket toward: along the belief's most uncertain axis
+    /// `axis`, on the side of the previous bracketing point until the receiver has
+    /// reached it (within the probe radius), then the other side. Turning to the other
+    /// side on every pulse instead would turn the rescuer around on each pulse while the
+    /// bracketing point is still steps away: no baseline is gained, and each turn about
+    /// the walker moves the hand-held receiver by an unknown lever arm, which the dead
+    /// reckoning must count as noise.
+    fn bracket_direction(&mut self, e: &VictimEstimate, axis: [f32; 2]) -> [f32; 2] {
+        let b = self.cfg.bracket_m;
+        let mut dir = match self.bracket_dir {
+            // The principal axis has no sign: keep the one of the current side.
+            Some(d) if d[0] * axis[0] + d[1] * axis[1] < 0.0 => [-axis[0], -axis[1]],
+            _ => axis,
+        };
+        if self.bracket_dir.is_some() {
+            let (tx, ty) = (e.p.x + dir[0] * b, e.p.y + dir[1] * b);
+            if libm::sqrtf(tx * tx + ty * ty) <= self.cfg.probe_radius_m {
+                dir = [-dir[0], -dir[1]];
+            }
+        }
+        self.bracket_dir = Some(dir);
+        dir
     }
 }
 
@@ -711,18 +759,61 @@ mod tests {
             0.0,
             Some(est(Vec3::new(30.0, 0.0, -2.0), 2.0)),
         ));
-        // Over the mean (0.1 m) but σ = 0.4 m: alternate sides, no probe yet.
+        // Over the mean (0.1 m) but σ = 0.4 m: bracket, no probe yet; the same side
+        // until the receiver has reached it.
         let e = Some(est(Vec3::new(0.1, 0.0, -2.0), 0.4));
         let a = g.update(&input(h, 0.0, 0.0, e));
         let b = g.update(&input(h, 0.0, 0.0, e));
         assert_eq!(a.status, Status::Localized);
-        let (ba, bb) = (a.bearing.unwrap_or(0.0), b.bearing.unwrap_or(0.0));
-        assert!((wrap_pi(ba - bb).abs() - PI).abs() < 0.5, "{ba} {bb}");
-        let mut last = b.status;
-        for _ in 2..cfg.probe_timeout_pulses {
+        let (ba, bb) = (a.bearing.unwrap_or(9.0), b.bearing.unwrap_or(9.0));
+        assert!(wrap_pi(ba - bb).abs() < 1e-5, "{ba} {bb}");
+        assert!(
+            a.walk_m
+                .is_some_and(|w| (w - 0.6).abs() < 1e-4 || (w - 0.4).abs() < 1e-4)
+        );
+        // At the bracketing point (0.5 m beyond the mean): back across the mean to the
+        // other side.
+        let side = [libm::cosf(ba), libm::sinf(ba)];
+        let at = |k: f32| Some(est(Vec3::new(0.1 - k * side[0], -k * side[1], -2.0), 0.4));
+        let c = g.update(&input(h, 0.5, 0.0, at(b.walk_m.unwrap_or(0.0))));
+        let bc = c.bearing.unwrap_or(9.0);
+        assert!((wrap_pi(bc - ba).abs() - PI).abs() < 0.05, "{ba} {bc}");
+        let d = g.update(&input(h, 0.5, 0.0, e));
+        let bd = d.bearing.unwrap_or(9.0);
+        assert!((wrap_pi(bd - ba).abs() - PI).abs() < 1e-3, "{ba} {bd}");
+        // Standing over the mean, it times out into "probe here".
+        let mut n = 0;
+        let mut last = d.status;
+        while last != Status::Probe && n < 100 {
             last = g.update(&input(h, 0.0, 0.0, e)).status;
+            n += 1;
         }
         assert_eq!(last, Status::Probe);
+        // Three pulses over the mean before the loop (a, b, d).
+        assert_eq!(n + 3, usize::from(cfg.probe_timeout_pulses));
+    }
+
+    #[test]
+    fn an_inconclusive_signal_does_not_flip_the_flux_line() {
+        // At the edge of reception: |H| ≈ 5 σ_bkg, fluctuating by ±σ_bkg (never a
+        // significant decrease), over 40 m: keep the direction.
+        let cfg = GuidanceConfig::default();
+        let mut g = Guidance::new(cfg);
+        for k in 0..40 {
+            let wiggle = if k % 3 == 0 { 1.0 } else { -0.6 };
+            let h = cfg.sigma_bkg * (5.0 + wiggle);
+            let o = g.update(&input(Vec3::new(h, 0.0, 0.0), 1.0, 0.0, None));
+            assert!(o.bearing.is_some_and(|b| b.abs() < 1e-5), "pulse {k}");
+        }
+        // A significant fall (walking away: |H| ∝ r⁻³) still flips it within 5 m + a few.
+        let mut h = 5.0 * cfg.sigma_bkg;
+        let mut flipped = false;
+        for _ in 0..12 {
+            h *= 0.85;
+            let o = g.update(&input(Vec3::new(h, 0.0, 0.0), 1.0, 0.0, None));
+            flipped |= o.bearing.is_some_and(|b| (b.abs() - PI).abs() < 1e-5);
+        }
+        assert!(flipped);
     }
 
     #[test]

@@ -149,6 +149,13 @@ pub struct PulseRow {
     pub path_m: f64,
     /// Components in the mixture.
     pub n_components: usize,
+    /// True device attitude (roll, pitch, yaw) at the pulse, rad.
+    pub true_rpy: [f64; 3],
+    /// Dead-reckoned displacement since the previous pulse: horizontal σ (m, the root
+    /// of the trace of its horizontal covariance) and steps counted.
+    pub displacement_sigma_h_m: f64,
+    /// Steps counted in that displacement.
+    pub displacement_steps: u16,
     /// The display after the pulse.
     #[serde(skip)]
     pub display: DisplayModel,
@@ -595,7 +602,9 @@ pub fn run(
                 if cfg.policy == Policy::DirectionalSearch {
                     // Optimistic: the classical receiver's field in W, exactly rotated.
                     ds.on_pulse(centre, &(rot * h_b), &h_w, &p1.p, &mut person);
-                } else if let Ok(display) = rx.on_pulse(centre as f32, &h, None) {
+                } else if let Some(d) = Some(rx.motion().clone().take_displacement(centre as f32))
+                    && let Ok(display) = rx.on_pulse(centre as f32, &h, None)
+                {
                     let est = rx.estimate();
                     let victim_est = est.map(|e| {
                         [
@@ -612,6 +621,9 @@ pub fn run(
                         true_distance_m: (tx_p - p1.p).norm(),
                         path_m,
                         n_components: rx.filter().len(),
+                        true_rpy: p1.rpy.into(),
+                        displacement_sigma_h_m: f64::from(d.cov[(0, 0)] + d.cov[(1, 1)]).sqrt(),
+                        displacement_steps: d.steps,
                         display,
                         status: display.status.as_str(),
                     };

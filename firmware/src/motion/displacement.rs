@@ -93,6 +93,9 @@ pub struct PdrNoise {
     pub lever_arm_m: f32,
     /// Horizontal σ of an interval without a detected step, m (starting or stopping).
     pub undetected_motion_m: f32,
+    /// Horizontal σ of an interval the walker stood through (no step, none pending and
+    /// none overdue at either end), m: the hand's sway only.
+    pub standing_motion_m: f32,
 }
 
 impl Default for PdrNoise {
@@ -109,6 +112,7 @@ impl Default for PdrNoise {
             translation_floor_m: 0.01,
             lever_arm_m: 0.35,
             undetected_motion_m: 0.1,
+            standing_motion_m: 0.03,
         }
     }
 }
@@ -123,6 +127,8 @@ pub struct Interval {
     pdr: PdrPose,
     steps: u16,
     distance: f32,
+    /// The walker stood through the whole interval (see [`Interval::mark_standing`]).
+    standing: bool,
 }
 
 impl Interval {
@@ -142,7 +148,15 @@ impl Interval {
             pdr: PdrPose::origin(0.0),
             steps: 0,
             distance: 0.0,
+            standing: false,
         }
+    }
+
+    /// Marks the interval as stood through: no step was under way at its start, none was
+    /// detected, pending or overdue at its end. Its horizontal σ without steps is then
+    /// [`PdrNoise::standing_motion_m`] instead of [`PdrNoise::undetected_motion_m`].
+    pub fn mark_standing(&mut self) {
+        self.standing = true;
     }
 
     /// Start time, s.
@@ -222,11 +236,17 @@ impl Interval {
         // The device turns about the walker, not about itself: a turn of Δyaw moves it by
         // up to lever·|Δyaw| sideways, and a start or stop within the interval may have
         // moved it without a detected step.
-        let lever = noise.lever_arm_m * libm::fabsf(p.theta);
-        let undetected = if self.steps == 0 {
-            noise.undetected_motion_m
-        } else {
-            0.0
+        // The device held `lever_arm_m` ahead of the turning axis moves along the chord,
+        // 2 L |sin(Δyaw / 2)|, not the arc L |Δyaw| (0.7 m, not 1.1 m, for a turn-around).
+        // Where the walker pivots is unknown (about the body, or about the device held
+        // over a spot), so the chord is noise, not a mean displacement.
+        let lever = 2.0 * noise.lever_arm_m * libm::fabsf(libm::sinf(0.5 * p.theta));
+        // A start or stop without a detected step may move the device; standing through
+        // the interval leaves only the hand's sway.
+        let undetected = match (self.steps, self.standing) {
+            (0, true) => noise.standing_motion_m,
+            (0, false) => noise.undetected_motion_m,
+            _ => 0.0,
         };
         let extra = lever * lever + undetected * undetected;
         c6[(0, 0)] += extra;
@@ -337,5 +357,49 @@ mod tests {
         // Q is symmetric positive semi-definite.
         let e = d.cov.symmetric_eigenvalues();
         assert!(e.min() > -1e-9, "{e:?}");
+    }
+
+    #[test]
+    fn standing_and_turning_without_steps_have_their_own_noise() {
+        let noise = PdrNoise {
+            translation_floor_m: 0.0,
+            heading_common_sigma_rad: 0.0,
+            ..PdrNoise::default()
+        };
+        let r0 = Mat3::identity();
+        let horizontal = |d: &Displacement| d.cov[(0, 0)] + d.cov[(1, 1)];
+        // No step, not known to be standing: a start or stop may have moved the device.
+        let iv = Interval::new(0.0, r0);
+        let d = iv.close(1.0, &r0, &noise, 0.0);
+        let u = noise.undetected_motion_m;
+        assert!(
+            (horizontal(&d) - 2.0 * u * u).abs() < 1e-6,
+            "{}",
+            horizontal(&d)
+        );
+        // Stood through: the hand's sway only.
+        let mut iv = Interval::new(0.0, r0);
+        iv.mark_standing();
+        let d = iv.close(1.0, &r0, &noise, 0.0);
+        let s = noise.standing_motion_m;
+        assert!(
+            (horizontal(&d) - 2.0 * s * s).abs() < 1e-6,
+            "{}",
+            horizontal(&d)
+        );
+        assert!(d.translation.norm() < 1e-6);
+        // A turn-around on the spot: the device 0.35 m ahead of the turning axis may
+        // have moved by the chord 2 L sin(θ/2) = 0.7 m (per horizontal axis), not the arc.
+        let rk = rotation_from_rpy(&Rpy::new(0.0, 0.0, core::f32::consts::PI - 1e-3));
+        let mut iv = Interval::new(0.0, r0);
+        iv.mark_standing();
+        let d = iv.close(1.0, &rk, &noise, 0.0);
+        let chord = 2.0 * noise.lever_arm_m * libm::sinf(0.5 * (core::f32::consts::PI - 1e-3));
+        let expect = 2.0 * (chord * chord + s * s);
+        assert!(
+            (horizontal(&d) - expect).abs() < 1e-3 * expect,
+            "{} {expect}",
+            horizontal(&d)
+        );
     }
 }

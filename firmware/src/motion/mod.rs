@@ -144,6 +144,9 @@ struct Running {
     yaw_mean: YawMean,
     last_length: f32,
     period: f32,
+    /// The walker was standing when the current interval began (no step under way,
+    /// pending or overdue).
+    standing_at_open: bool,
 }
 
 /// Attitude, step detection and dead reckoning from IMU samples; displacement per pulse.
@@ -261,6 +264,7 @@ impl Motion {
                 yaw_mean: YawMean::default(),
                 last_length: self.cfg.step_length.length(0.0),
                 period: 1.0 / 1.8,
+                standing_at_open: false,
             });
             return;
         };
@@ -370,6 +374,12 @@ impl Motion {
         let partial = frac * run.last_length;
         let sp = sigma_steps * run.last_length;
         let mut closing = run.interval;
+        // Standing now: no step pending and none within two step periods (f ≥ 2).
+        let standing_now = pending.is_none() && f >= 2.0;
+        if run.standing_at_open && standing_now && closing.steps() == 0 {
+            closing.mark_standing();
+        }
+        run.standing_at_open = standing_now;
         if partial > 0.0 {
             closing.add_stride(t, partial, yaw_now, sp * sp, &noise);
         }
