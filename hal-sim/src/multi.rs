@@ -646,7 +646,7 @@ fn single_victim_check(tries: u64) -> anyhow::Result<String> {
     if tries == 0 {
         return Ok(s);
     }
-    let runs = run_case(Case::SogCalibrated, tries)?;
+    let runs = run_case(Case::SogCalibrated, 1, tries)?;
     let probed = runs.iter().filter(|r| r.steps.is_some()).count();
     let err = stats(runs.iter().map(|r| r.error_h_m));
     let ratio = stats(
