@@ -24,6 +24,8 @@
 //!   filter [`estimate::SogFilter`] (IROS 2006 Algorithm 1; ICRA 2006 known trajectory).
 //! - [`guidance`]: search control (IROS 2006 §III-C, ICRA 2006 §V-D): flux line, then the
 //!   mixture mean, fine search and "probe here".
+//! - [`classic`]: the receiver's "classic" mode, the classical directional search
+//!   (ICRA 2006 §II-A) on the receiver's own pulses and attitude.
 //! - [`app`]: the application state machine [`app::Receiver`] that owns the pipeline.
 //! - [`display`]: draws the [`app::DisplayModel`] on any 128×64 monochrome
 //!   `embedded-graphics` target.
@@ -42,6 +44,7 @@
 )]
 
 pub mod app;
+pub mod classic;
 pub mod dipole;
 pub mod display;
 pub mod drivers;
