@@ -558,9 +558,12 @@ impl ClassicSearch {
             line.reversed = true;
             line.below = 0;
             Some(line.side)
-        } else if line.below >= 2 || steps_out >= u16::from(self.cfg.max_points) {
-            None
-        } else if line.reversed && steps_out == 1 && line.below >= 1 {
+        } else if line.below >= 2
+            || steps_out >= u16::from(self.cfg.max_points)
+            || (line.reversed && steps_out == 1 && line.below >= 1)
+        {
+            // Two points past the maximum, the line's end, or both sides of the centre
+            // weaker than it: the line is done.
             None
         } else {
             Some(line.pos + line.side)
@@ -573,7 +576,14 @@ impl ClassicSearch {
     }
 
     /// Ask for the receiver at point `target` of `line`.
-    fn move_to(&mut self, mut line: Line, target: i16, spacing: f32, t: f32, n: f32) -> ClassicOutput {
+    fn move_to(
+        &mut self,
+        mut line: Line,
+        target: i16,
+        spacing: f32,
+        t: f32,
+        n: f32,
+    ) -> ClassicOutput {
         let delta = f32::from(target - line.pos) * spacing;
         line.pos = target;
         line.ready_t = t + self.cfg.settle_s + libm::fabsf(delta) / self.cfg.hand_speed_m_s;
@@ -698,11 +708,16 @@ mod tests {
         let expected = (h[1]).atan2(h[0]) as f32;
         for sign in [1.0, -1.0] {
             let mut s = search();
-            let out = s.on_pulse(&pulse(h, &rpy, 1.0, sign), &att(rpy), 0.0).unwrap();
+            let out = s
+                .on_pulse(&pulse(h, &rpy, 1.0, sign), &att(rpy), 0.0)
+                .unwrap();
             let b = out.bearing.unwrap();
             // Along ±(h_x, h_y), the sign that agrees with the device's yaw.
             let d = wrap_pi(b - expected).abs();
-            assert!(d < 1e-3 || (d - core::f32::consts::PI).abs() < 1e-3, "{b} {expected}");
+            assert!(
+                d < 1e-3 || (d - core::f32::consts::PI).abs() < 1e-3,
+                "{b} {expected}"
+            );
             assert!(libm::cosf(b - rpy.z) >= 0.0);
             let arrow = s.display(1.0, rpy.z).arrow_deg.unwrap();
             let want = wrap_pi(b - rpy.z).to_degrees();
@@ -767,7 +782,9 @@ mod tests {
         // Walking back 6 m reaches the peak: the fine search starts.
         let rpy = Rpy::zeros();
         let h = dipole([5.0, 0.0, 0.0], [0.01, 0.0, 0.0]);
-        let o = s.on_pulse(&pulse(h, &rpy, 9.0, 1.0), &att(rpy), 6.0).unwrap();
+        let o = s
+            .on_pulse(&pulse(h, &rpy, 9.0, 1.0), &att(rpy), 6.0)
+            .unwrap();
         assert_eq!(o.instruction, Instruction::LowerToSnow);
         assert_eq!(s.display(9.0, 0.0).status, Status::Localized);
     }
@@ -782,7 +799,9 @@ mod tests {
         for k in 0..200 {
             let h = dipole([x, y, depth], m);
             let before = s.phase;
-            let o = s.on_pulse(&pulse(h, &rpy, k as f32, 1.0), &att(rpy), 0.0).unwrap();
+            let o = s
+                .on_pulse(&pulse(h, &rpy, k as f32, 1.0), &att(rpy), 0.0)
+                .unwrap();
             // A new request (the phase moved on): the hand goes there before the reading.
             let moving = matches!(o.instruction, Instruction::Move | Instruction::Probe);
             if s.phase != before && moving {
@@ -818,7 +837,11 @@ mod tests {
                 }
             }
             let err = (p[0] - best.1[0]).hypot(p[1] - best.1[1]);
-            assert!(err < 0.3, "{m:?}: probe {p:?} vs max {:?} ({pulses} pulses)", best.1);
+            assert!(
+                err < 0.3,
+                "{m:?}: probe {p:?} vs max {:?} ({pulses} pulses)",
+                best.1
+            );
         }
     }
 
@@ -827,14 +850,20 @@ mod tests {
         let mut s = search();
         let rpy = Rpy::zeros();
         let h = dipole([0.5, 0.0, 1.0], [0.0, 0.0, 0.01]);
-        let o = s.on_pulse(&pulse(h, &rpy, 0.0, 1.0), &att(rpy), 0.0).unwrap();
+        let o = s
+            .on_pulse(&pulse(h, &rpy, 0.0, 1.0), &att(rpy), 0.0)
+            .unwrap();
         assert_eq!(o.instruction, Instruction::LowerToSnow);
         // Lowering takes 0.7 s + 0.8 m / 0.5 m/s = 2.3 s: the pulse at 1 s changes nothing.
         let before = s.clone();
-        let o1 = s.on_pulse(&pulse(h, &rpy, 1.0, 1.0), &att(rpy), 0.0).unwrap();
+        let o1 = s
+            .on_pulse(&pulse(h, &rpy, 1.0, 1.0), &att(rpy), 0.0)
+            .unwrap();
         assert_eq!(o1.instruction, Instruction::LowerToSnow);
         assert_eq!(s.phase, before.phase);
-        let o2 = s.on_pulse(&pulse(h, &rpy, 2.5, 1.0), &att(rpy), 0.0).unwrap();
+        let o2 = s
+            .on_pulse(&pulse(h, &rpy, 2.5, 1.0), &att(rpy), 0.0)
+            .unwrap();
         assert_eq!(o2.instruction, Instruction::Move);
         assert!((o2.walk_m.unwrap() - 0.5).abs() < 1e-6);
     }
@@ -844,21 +873,37 @@ mod tests {
         let mut s = search();
         let rpy = Rpy::zeros();
         let h = dipole([20.0, 3.0, 1.0], [0.01, 0.0, 0.0]);
-        s.on_pulse(&pulse(h, &rpy, 5.0, 1.0), &att(rpy), 0.0).unwrap();
+        s.on_pulse(&pulse(h, &rpy, 5.0, 1.0), &att(rpy), 0.0)
+            .unwrap();
         let before = s.clone();
         let mut nan = pulse(h, &rpy, 6.0, 1.0);
         nan.h.x = f32::NAN;
-        assert_eq!(s.on_pulse(&nan, &att(rpy), 1.0), Err(ClassicError::NonFinite));
-        let zero = Pulse { h: Vec3::zeros(), t: 6.0 };
-        assert_eq!(s.on_pulse(&zero, &att(rpy), 1.0), Err(ClassicError::ZeroField));
+        assert_eq!(
+            s.on_pulse(&nan, &att(rpy), 1.0),
+            Err(ClassicError::NonFinite)
+        );
+        let zero = Pulse {
+            h: Vec3::zeros(),
+            t: 6.0,
+        };
+        assert_eq!(
+            s.on_pulse(&zero, &att(rpy), 1.0),
+            Err(ClassicError::ZeroField)
+        );
         let early = pulse(h, &rpy, 4.0, 1.0);
         assert_eq!(
             s.on_pulse(&early, &att(rpy), 1.0),
             Err(ClassicError::TimeNotIncreasing)
         );
         let ok = pulse(h, &rpy, 6.0, 1.0);
-        assert_eq!(s.on_pulse(&ok, &att(rpy), -1.0), Err(ClassicError::NegativeWalk));
-        assert_eq!(s.on_pulse(&ok, &att(rpy), f32::INFINITY), Err(ClassicError::NonFinite));
+        assert_eq!(
+            s.on_pulse(&ok, &att(rpy), -1.0),
+            Err(ClassicError::NegativeWalk)
+        );
+        assert_eq!(
+            s.on_pulse(&ok, &att(rpy), f32::INFINITY),
+            Err(ClassicError::NonFinite)
+        );
         let bad_att = att(Rpy::new(f32::NAN, 0.0, 0.0));
         assert_eq!(s.on_pulse(&ok, &bad_att, 1.0), Err(ClassicError::NonFinite));
         assert_eq!(s, before);
@@ -875,7 +920,8 @@ mod tests {
         assert_eq!(s.display(0.0, 0.0).status, Status::NoSignal);
         let rpy = Rpy::zeros();
         let h = dipole([20.0, 3.0, 1.0], [0.01, 0.0, 0.0]);
-        s.on_pulse(&pulse(h, &rpy, 5.0, 1.0), &att(rpy), 0.0).unwrap();
+        s.on_pulse(&pulse(h, &rpy, 5.0, 1.0), &att(rpy), 0.0)
+            .unwrap();
         assert_eq!(s.display(6.0, 0.0).status, Status::FluxLine);
         let lost = s.display(9.0, 0.0);
         assert_eq!(lost.status, Status::NoSignal);

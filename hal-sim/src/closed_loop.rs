@@ -246,16 +246,16 @@ impl Outcome {
     }
 }
 
-fn gauss(rng: &mut impl Rng) -> f64 {
+pub(crate) fn gauss(rng: &mut impl Rng) -> f64 {
     StandardNormal.sample(rng)
 }
 
 /// The drawn scenario.
-struct Scenario {
-    tx: Transmitter,
-    start: V3,
-    heading: f64,
-    step_cal: f64,
+pub(crate) struct Scenario {
+    pub(crate) tx: Transmitter,
+    pub(crate) start: V3,
+    pub(crate) heading: f64,
+    pub(crate) step_cal: f64,
 }
 
 /// Height of the rescuer's lift of the receiver (up, then down), m.
@@ -264,11 +264,11 @@ pub const LIFT_M: f64 = 0.4;
 pub const LIFT_S: f64 = 2.0;
 
 /// Tick of the simulation (the IMU period), s.
-const DT: f64 = 0.01;
+pub(crate) const DT: f64 = 0.01;
 /// Height of the receiver above the snow, m.
-const HOLD_HEIGHT_M: f64 = 1.0;
+pub(crate) const HOLD_HEIGHT_M: f64 = 1.0;
 /// Receiver ahead of / left of the torso, m.
-const HOLD_OFFSET_M: [f64; 2] = [0.35, -0.1];
+pub(crate) const HOLD_OFFSET_M: [f64; 2] = [0.35, -0.1];
 /// Vertical bounce of the receiver per step, m (≈ 2.6 m/s² at 1.8 Hz).
 const BOB_M: f64 = 0.02;
 /// Smallest |H| / σ_bkg at the start (the primary search's first usable signal).
@@ -276,9 +276,13 @@ const START_SNR: f64 = 12.0;
 /// Speed of the receiver in the directional search's cross search, m/s.
 const CRAWL_M_S: f64 = 0.5;
 /// Receiver height above the snow in the directional search's cross search, m.
-const CROSS_HEIGHT_M: f64 = 0.2;
+pub(crate) const CROSS_HEIGHT_M: f64 = 0.2;
 
-fn draw_scenario(cfg: &ClosedLoopConfig, rng: &mut ChaCha8Rng, noise: &PulseNoise) -> Scenario {
+pub(crate) fn draw_scenario(
+    cfg: &ClosedLoopConfig,
+    rng: &mut ChaCha8Rng,
+    noise: &PulseNoise,
+) -> Scenario {
     let d0: f64 = rng.random_range(40.0..=70.0);
     let bearing: f64 = rng.random_range(-PI..PI);
     let depth: f64 = rng.random_range(0.3..=3.0);
@@ -319,33 +323,33 @@ fn draw_scenario(cfg: &ClosedLoopConfig, rng: &mut ChaCha8Rng, noise: &PulseNois
 
 /// Receiver pose at one tick.
 #[derive(Debug, Clone, Copy)]
-struct Pose {
-    t: f64,
-    p: V3,
-    rpy: V3,
+pub(crate) struct Pose {
+    pub(crate) t: f64,
+    pub(crate) p: V3,
+    pub(crate) rpy: V3,
 }
 
 /// The walking person (torso on the snow surface).
-struct Person {
-    c: [f64; 2],
-    psi: f64,
-    psi_dot: f64,
-    w: f64,
-    w_target: f64,
-    phase: f64,
-    psi_des: f64,
-    wobble: [Wobble; 3],
+pub(crate) struct Person {
+    pub(crate) c: [f64; 2],
+    pub(crate) psi: f64,
+    pub(crate) psi_dot: f64,
+    pub(crate) w: f64,
+    pub(crate) w_target: f64,
+    pub(crate) phase: f64,
+    pub(crate) psi_des: f64,
+    pub(crate) wobble: [Wobble; 3],
     /// Receiver height above the snow, m.
-    hold_height: f64,
+    pub(crate) hold_height: f64,
     /// Fine search of the directional search: the receiver is carried straight to this
     /// point (north, west) at [`CRAWL_M_S`], without steps.
-    crawl_to: Option<[f64; 2]>,
+    pub(crate) crawl_to: Option<[f64; 2]>,
     /// Start time of a lift of the receiver under way (see [`LIFT_M`]).
-    lift_t0: Option<f64>,
+    pub(crate) lift_t0: Option<f64>,
 }
 
 impl Person {
-    fn advance(&mut self, cfg: &ClosedLoopConfig) {
+    pub(crate) fn advance(&mut self, cfg: &ClosedLoopConfig) {
         if let Some(target) = self.crawl_to {
             let device = self.device_xy();
             let (dx, dy) = (target[0] - device[0], target[1] - device[1]);
@@ -388,7 +392,7 @@ impl Person {
     }
 
     /// Horizontal receiver position (north, west).
-    fn device_xy(&self) -> [f64; 2] {
+    pub(crate) fn device_xy(&self) -> [f64; 2] {
         let (s, c) = self.psi.sin_cos();
         let [f, l] = HOLD_OFFSET_M;
         [self.c[0] + f * c - l * s, self.c[1] + f * s + l * c]
@@ -402,7 +406,7 @@ impl Person {
         })
     }
 
-    fn pose(&self, t: f64) -> Pose {
+    pub(crate) fn pose(&self, t: f64) -> Pose {
         let (s, c) = self.psi.sin_cos();
         let [f, l] = HOLD_OFFSET_M;
         // The bob is a function of the gait phase only (at rest between steps): one dip
@@ -425,7 +429,7 @@ impl Person {
 }
 
 /// IMU sample synthesized at the middle pose of three consecutive ticks.
-fn imu_sample(
+pub(crate) fn imu_sample(
     rng: &mut ChaCha8Rng,
     noise: &ImuNoise,
     bias: &V3,
@@ -724,7 +728,7 @@ pub fn run(
 
 /// Primary search: straight on along `heading` (with the rescuer's heading error), or
 /// stand when there is none.
-fn walk_primary(person: &mut Person, heading: Option<f64>, heading_err: f64) {
+pub(crate) fn walk_primary(person: &mut Person, heading: Option<f64>, heading_err: f64) {
     match heading {
         Some(h) => {
             person.psi_des = h + heading_err;

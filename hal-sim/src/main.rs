@@ -63,6 +63,9 @@ enum Command {
     /// NEES of the application's estimate (IMU → PDR → SOGs) against the truth over
     /// seeded simulated searches (slides 002 consistency test); a markdown table.
     Consistency(hal_sim::faults::consistency::Args),
+    /// Seeded closed-loop rescues with the receiver in its "classic" mode (the firmware's
+    /// classical directional search) beside the idealized DS and the SOG; a markdown report.
+    ClassicReport(hal_sim::classic_loop::Args),
 }
 
 fn read_log(path: &Path) -> Result<session::Session> {
@@ -109,5 +112,6 @@ fn main() -> Result<()> {
             hal_sim::baselines::report::run(&args, &mut stdout.lock())
         }
         Command::Consistency(args) => hal_sim::faults::consistency::run(&args, &mut stdout.lock()),
+        Command::ClassicReport(args) => hal_sim::classic_loop::report(&args, &mut stdout.lock()),
     }
 }
