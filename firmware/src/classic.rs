@@ -65,6 +65,10 @@ use crate::guidance::{Status, flux_direction, relative_arrow, to_degrees_wrapped
 /// Pulses averaged for the flip rule (module docs, "Smoothing").
 pub const SMOOTH_PULSES: usize = 3;
 
+/// Largest walk accepted between two pulses, m: a running rescuer (≈ 3 m/s) over a lost
+/// signal's gap of ten or more seconds; beyond it the dead reckoning is broken.
+pub const MAX_WALK_M: f32 = 50.0;
+
 /// Thresholds of the classic mode (module docs give the physics of each).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ClassicConfig {
@@ -164,6 +168,8 @@ pub enum ClassicError {
     TimeNotIncreasing,
     /// A negative walked distance.
     NegativeWalk,
+    /// A walked distance above [`MAX_WALK_M`].
+    ImplausibleWalk,
 }
 
 /// What the rescuer is asked to do.
@@ -331,12 +337,18 @@ impl ClassicSearch {
         if walked_m < 0.0 {
             return Err(ClassicError::NegativeWalk);
         }
+        if walked_m > MAX_WALK_M {
+            return Err(ClassicError::ImplausibleWalk);
+        }
         if self.last_t.is_some_and(|t| pulse.t < t) {
             return Err(ClassicError::TimeNotIncreasing);
         }
         let h_g = rotation_from_rpy(&attitude.rpy) * pulse.h;
         let n = h_g.norm();
-        if !(n > 0.0 && n.is_finite()) {
+        if !n.is_finite() {
+            return Err(ClassicError::NonFinite);
+        }
+        if n <= 0.0 {
             return Err(ClassicError::ZeroField);
         }
         self.last_t = Some(pulse.t);
@@ -912,6 +924,48 @@ mod tests {
             ..ClassicConfig::default()
         };
         assert_eq!(ClassicSearch::new(cfg).err(), Some(ClassicError::BadConfig));
+    }
+
+    #[test]
+    fn arbitrary_input_never_panics_nor_shows_nan() {
+        // A small xorshift over wild magnitudes, attitudes, walks and times, NaN and ∞
+        // among them: every accepted pulse gives finite outputs.
+        let mut x: u64 = 0x9e37_79b9_7f4a_7c15;
+        let mut next = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            x
+        };
+        let mut wild = |scale: f32| -> f32 {
+            let r = next();
+            match r % 23 {
+                0 => f32::NAN,
+                1 => f32::INFINITY,
+                2 => 0.0,
+                3 => f32::MAX,
+                _ => ((r >> 8) % 20001) as f32 / 10000.0 * scale - scale,
+            }
+        };
+        let mut s = search();
+        let mut t = 0.0;
+        for _ in 0..5000 {
+            let mag = libm::powf(10.0, wild(6.0) - 6.0);
+            let h = Vec3::new(wild(1.0), wild(1.0), wild(1.0)) * mag;
+            let rpy = Rpy::new(wild(3.2), wild(1.5), wild(3.2));
+            t += libm::fabsf(wild(1.5));
+            let walked = wild(2.0);
+            let before = s.clone();
+            match s.on_pulse(&Pulse { h, t }, &att(rpy), walked) {
+                Ok(o) => {
+                    let vals = [o.bearing, o.distance_m, o.walk_m, Some(o.h_norm)];
+                    assert!(vals.iter().flatten().all(|v| v.is_finite()), "{o:?}");
+                    let d = s.display(t, rpy.z);
+                    assert!(d.arrow_deg.is_none_or(|a| a.is_finite()));
+                }
+                Err(_) => assert_eq!(s, before),
+            }
+        }
     }
 
     #[test]
