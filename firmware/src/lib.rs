@@ -26,6 +26,8 @@
 //!   mixture mean, fine search and "probe here".
 //! - [`victims`]: several transmitters — one SOGs mixture per victim, displacement
 //!   composition between a victim's pulses, the victim list.
+//! - [`classic`]: the receiver's "classic" mode, the classical directional search
+//!   (ICRA 2006 §II-A) on the receiver's own pulses and attitude.
 //! - [`app`]: the application state machine [`app::Receiver`] that owns the pipeline.
 //! - [`display`]: draws the [`app::DisplayModel`] on any 128×64 monochrome
 //!   `embedded-graphics` target.
@@ -44,6 +46,7 @@
 )]
 
 pub mod app;
+pub mod classic;
 pub mod dipole;
 pub mod display;
 pub mod drivers;

@@ -258,11 +258,11 @@ pub(crate) fn gauss(rng: &mut impl Rng) -> f64 {
 }
 
 /// The drawn scenario.
-struct Scenario {
-    tx: Transmitter,
-    start: V3,
-    heading: f64,
-    step_cal: f64,
+pub(crate) struct Scenario {
+    pub(crate) tx: Transmitter,
+    pub(crate) start: V3,
+    pub(crate) heading: f64,
+    pub(crate) step_cal: f64,
 }
 
 /// Height of the rescuer's lift of the receiver (up, then down), m.
@@ -283,9 +283,13 @@ const START_SNR: f64 = 12.0;
 /// Speed of the receiver in the directional search's cross search, m/s.
 const CRAWL_M_S: f64 = 0.5;
 /// Receiver height above the snow in the directional search's cross search, m.
-const CROSS_HEIGHT_M: f64 = 0.2;
+pub(crate) const CROSS_HEIGHT_M: f64 = 0.2;
 
-fn draw_scenario(cfg: &ClosedLoopConfig, rng: &mut ChaCha8Rng, noise: &PulseNoise) -> Scenario {
+pub(crate) fn draw_scenario(
+    cfg: &ClosedLoopConfig,
+    rng: &mut ChaCha8Rng,
+    noise: &PulseNoise,
+) -> Scenario {
     let d0: f64 = rng.random_range(40.0..=70.0);
     let bearing: f64 = rng.random_range(-PI..PI);
     let depth: f64 = rng.random_range(0.3..=3.0);

@@ -6,6 +6,7 @@ pub mod accuracy;
 pub mod baselines;
 pub mod budget_data;
 pub mod bus;
+pub mod classic_loop;
 pub mod closed_loop;
 pub mod demo;
 pub mod faults;

@@ -76,6 +76,9 @@ enum Command {
     /// marking: victims found, per-victim error, time to find all, wrong-victim marks;
     /// a markdown report.
     MultiReport(hal_sim::multi::Args),
+    /// Seeded closed-loop rescues with the receiver in its "classic" mode (the firmware's
+    /// classical directional search) beside the idealized DS and the SOG; a markdown report.
+    ClassicReport(hal_sim::classic_loop::Args),
 }
 
 fn read_log(path: &Path) -> Result<session::Session> {
@@ -126,5 +129,6 @@ fn main() -> Result<()> {
         Command::TeamMap(args) => hal_sim::team::run_map(&args, &mut stdout.lock()),
         Command::TeamReport(args) => hal_sim::team::report::run(&args, &mut stdout.lock()),
         Command::MultiReport(args) => hal_sim::multi::report(&args, &mut stdout.lock()),
+        Command::ClassicReport(args) => hal_sim::classic_loop::report(&args, &mut stdout.lock()),
     }
 }
