@@ -174,8 +174,7 @@ impl StepInput {
     /// The component's prior with the scale's mean reversion applied (a first-order
     /// Gauss–Markov step of `s − 1`: `F_ss = ρ`, `P_ss += q`); the identity when
     /// `scale_rev` is `None`.
-    pub fn revert_scale(&self, x: &StateVec, p: &StateMat) -> (StateVec, StateMat) {
-        let (mut x, mut p) = (*x, *p);
+    pub fn revert_scale(&self, x: &mut StateVec, p: &mut StateMat) {
         if let Some((rho, q)) = self.scale_rev {
             x[I_S] = 1.0 + rho * (x[I_S] - 1.0);
             for i in 0..NX {
@@ -184,7 +183,6 @@ impl StepInput {
             }
             p[(I_S, I_S)] += q;
         }
-        (x, p)
     }
 
     /// The displacement covariance seen by the component `x`. `∂p'/∂a = ∂p'/∂Δp / s`,
