@@ -732,6 +732,51 @@ mod tests {
     }
 
     #[test]
+    fn scale_reversion_is_the_gauss_markov_prediction() {
+        // s' = 1 + ρ(s − 1) + w, var w = q: F = I except F_ss = ρ, P' = F P Fᵀ + q e_s e_sᵀ
+        // (dense, in f64); and the stationary law N(1, σ²) is kept: P_ss = σ², no
+        // correlations, stays σ² for any ρ with q = (1 − ρ²)σ².
+        let mut rng = SmallRng::seed_from_u64(41);
+        for _ in 0..50 {
+            let x = random_state(&mut rng);
+            let p = random_state_cov(&mut rng, p_of3(&x).norm());
+            let rho: f32 = rng.random_range(0.5..1.0);
+            let q: f32 = rng.random_range(0.0..1e-3);
+            let mut inp = StepInput::new(&MotionVec::zeros(), &MotionMat::zeros(), &Vec3::x(), 1.0);
+            inp.scale_rev = Some((rho, q));
+            let (mut x1, mut p1) = (x, p);
+            inp.revert_scale(&mut x1, &mut p1);
+            let mut f = M::<f64, 10, 10>::identity();
+            f[(I_S, I_S)] = rho as f64;
+            let mut want = f * p.cast::<f64>() * f.transpose();
+            want[(I_S, I_S)] += q as f64;
+            for i in 0..10 {
+                for j in 0..10 {
+                    let sc = (want[(i, i)] * want[(j, j)]).sqrt().max(1e-12);
+                    assert!(((p1[(i, j)] as f64) - want[(i, j)]).abs() / sc < 1e-5);
+                }
+                let xi = if i == I_S {
+                    1.0 + rho * (x[I_S] - 1.0)
+                } else {
+                    x[i]
+                };
+                assert!((x1[i] - xi).abs() <= 1e-6 * (1.0 + xi.abs()));
+            }
+        }
+        let sigma2 = 0.02f32 * 0.02;
+        let mut p = StateMat::identity();
+        p[(I_S, I_S)] = sigma2;
+        let mut x = StateVec::zeros();
+        x[I_S] = 1.0;
+        let rho = 0.9;
+        let mut inp = StepInput::new(&MotionVec::zeros(), &MotionMat::zeros(), &Vec3::x(), 1.0);
+        inp.scale_rev = Some((rho, (1.0 - rho * rho) * sigma2));
+        inp.revert_scale(&mut x, &mut p);
+        assert!((p[(I_S, I_S)] - sigma2).abs() < 1e-9);
+        assert_eq!(x[I_S], 1.0);
+    }
+
+    #[test]
     fn gate_statistic_and_prediction_match_the_dense_forms() {
         // The gate's d² is the step's own innovation distance (same prior, same S), and
         // the predict-only step is the dense composition x' = f(x, u), P' = Fₓ P Fₓᵀ +
