@@ -197,6 +197,8 @@ pub struct AppStats {
     pub other_source: u32,
     /// Mixture re-initializations.
     pub reinitializations: u32,
+    /// Pulses the estimator's outlier gate withheld (no component explains them).
+    pub pulses_gated: u32,
 }
 
 /// The receiver application (see the module docs for how the board stores it).
@@ -470,6 +472,10 @@ impl Receiver {
         if reinitialized {
             self.stats.reinitializations = self.stats.reinitializations.saturating_add(1);
         }
+        let gated = report.outcome == StepOutcome::Withheld;
+        if gated {
+            self.stats.pulses_gated = self.stats.pulses_gated.saturating_add(1);
+        }
         self.bank.drop_lost(t);
         if self.target.is_some_and(|i| self.bank.get(i).is_none()) {
             self.set_target(None);
@@ -483,7 +489,8 @@ impl Receiver {
             // The pulse's field in G_k for the flux line: h_G = R_GR(rpy) h_R.
             let h_g = rotation_from_rpy(&rpy) * h_body;
             self.last = self.guidance.update(&GuidanceInput {
-                h_g: Some(h_g),
+                // An outlier's field would bend the flux line the wrong way.
+                h_g: (!gated).then_some(h_g),
                 walked_m: own.distance_m,
                 yaw: rpy.z,
                 estimate: self.bank.filter(slot).estimate(),

@@ -8,7 +8,8 @@
 //!
 //! Duration: `SOAK_MINUTES` at build time (default 5), e.g. the full hour with
 //! `SOAK_MINUTES=60 cargo qemu --bin qemu_soak`. Diagnostics, also at build time:
-//! `SOAK_WALK_ONLY=1` (no standing or turning), `SOAK_PIN_SCALE=1` (scale state σ 0.2 %). Prints, one line each:
+//! `SOAK_WALK_ONLY=1` (no standing or turning), `SOAK_PIN_SCALE=1` (scale state σ 0.2 %),
+//! `SOAK_SCALE_CONSTANT=1` (scale without mean reversion). Prints, one line each:
 //! - `window <minute> <pulses> <components_max> <components_end> <max_weight> <err_last_m>
 //!   <err_max_m> <err_mean_m> <dist_mean_m> <nees> <scale> <scale_sigma> <stack_hw_b>
 //!   <pulse_worst_instr> <imu_worst_instr>` every 5 simulated minutes (errors: the mixture mean against the
@@ -169,6 +170,11 @@ fn main() -> ! {
     // prior (σ 0.2 % instead of the calibration's 2 %), to tell its drift from the rest.
     if option_env!("SOAK_PIN_SCALE").is_some() {
         cfg.sog.scale_sigma = 0.002;
+    }
+    // Diagnostic (build with `SOAK_SCALE_CONSTANT=1`): the scale as a walk-long constant
+    // (no mean reversion, `scale_tau_s` = 0), the filter before the soak's scale fix.
+    if option_env!("SOAK_SCALE_CONSTANT").is_some() {
+        cfg.sog.scale_tau_s = 0.0;
     }
     // SAFETY: the only reference ever taken to RECEIVER, here, once.
     let slot = unsafe { &mut *addr_of_mut!(RECEIVER) };

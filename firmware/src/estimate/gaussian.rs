@@ -143,6 +143,9 @@ pub(crate) struct StepInput {
     /// Its covariance (m²), or `None` when the pulse has no absolute part (the common
     /// case: then the step costs nothing extra).
     pub qa: Option<Mat3>,
+    /// Mean reversion `(ρ, q)` of the scale over the interval (`SogConfig::scale_tau_s`),
+    /// applied to each component before the step; `None` for a constant scale.
+    pub scale_rev: Option<(f32, f32)>,
 }
 
 impl StepInput {
@@ -156,6 +159,7 @@ impl StepInput {
             r_var,
             a: Vec3::zeros(),
             qa: None,
+            scale_rev: None,
         }
     }
 
@@ -165,6 +169,20 @@ impl StepInput {
         self.a = *a;
         self.qa = Some(*qa);
         self
+    }
+
+    /// The component's prior with the scale's mean reversion applied (a first-order
+    /// Gauss–Markov step of `s − 1`: `F_ss = ρ`, `P_ss += q`); the identity when
+    /// `scale_rev` is `None`.
+    pub fn revert_scale(&self, x: &mut StateVec, p: &mut StateMat) {
+        if let Some((rho, q)) = self.scale_rev {
+            x[I_S] = 1.0 + rho * (x[I_S] - 1.0);
+            for i in 0..NX {
+                p[(i, I_S)] *= rho;
+                p[(I_S, i)] *= rho;
+            }
+            p[(I_S, I_S)] += q;
+        }
     }
 
     /// The displacement covariance seen by the component `x`. `∂p'/∂a = ∂p'/∂Δp / s`,
@@ -247,6 +265,64 @@ fn step_component_joseph(
     match attitude {
         Some((z, r)) => attitude_update_joseph(&x1, &p1, z, r).map(|(x2, p2)| (x2, p2, inn)),
         None => Ok((x1, p1, inn)),
+    }
+}
+
+/// The outlier gate's statistic for one component: the squared Mahalanobis distance of
+/// the pulse's innovation at the prior augmented mean (IROS eq. 12–14), with the better
+/// of the two signs. It is [`Innovation::d2`] of [`step_gaussian`] without the update
+/// and composition (≈ a third of the step's cost), so the gate can be decided before
+/// any component is touched.
+pub(crate) fn gate_d2(
+    inp: &StepInput,
+    x: &StateVec,
+    p: &StateMat,
+) -> Result<f32, ComponentFailure> {
+    let q = inp.q_for(x);
+    let (prior_x, prior_j) = compose_rot(x, &inp.u, &inp.a, &Rot::new(&rpy_of(x)), &inp.rb);
+    let meas =
+        measure_rot(&prior_x, &Rot::new(&rpy_of(&prior_x))).map_err(|_| ComponentFailure::Model)?;
+    let (ha, hb) = prior_j.chain(&meas.jac);
+    // S = H* P* H*ᵀ + R (eq. 13), P* = diag(P, Q).
+    let mut s = ha * (p * ha.transpose()) + hb * (q * hb.transpose());
+    s = (s + s.transpose()) * 0.5;
+    for i in 0..3 {
+        s[(i, i)] += inp.r_var;
+    }
+    let l = cholesky3(&s).map_err(|_| ComponentFailure::NotPositiveDefinite)?;
+    let l_inv = lower_inverse3(&l);
+    let d2_pos = mahalanobis2(&l_inv, &(inp.z - meas.h));
+    let d2_neg = mahalanobis2(&l_inv, &(-inp.z - meas.h));
+    let d2 = d2_pos.min(d2_neg);
+    if d2.is_nan() {
+        return Err(ComponentFailure::NonFinite);
+    }
+    Ok(d2)
+}
+
+/// Prediction and composition of one Gaussian without a pulse update (IROS eq. 10–11
+/// and 15 with `K = 0`): `x_k = f(x, u)`, `P_k = F P* Fᵀ`, then the IMU attitude update
+/// as in [`step_component`]. Used for a pulse the outlier gate withheld: the receiver
+/// still moved, so the robocentric state must follow it; only the pulse is not used.
+pub(crate) fn predict_component(
+    inp: &StepInput,
+    x: &StateVec,
+    p: &StateMat,
+    attitude: Option<(&Vec3, &Mat3)>,
+) -> Result<(StateVec, StateMat), ComponentFailure> {
+    let q = inp.q_for(x);
+    let (x1, j) = compose_rot(x, &inp.u, &inp.a, &Rot::new(&rpy_of(x)), &inp.rb);
+    let fp = j.apply_fx(p).transpose();
+    let fq = j.apply_fu(&q).transpose();
+    let mut p1 = j.apply_fx(&fp) + j.apply_fu(&fq);
+    p1 = (p1 + p1.transpose()) * 0.5;
+    let x1 = finish(x1, &p1, 0.0)?;
+    let Some((z, r)) = attitude else {
+        return Ok((x1, p1));
+    };
+    match attitude_update(&x1, &p1, z, r) {
+        Ok(out) if well_conditioned(&out.1) => Ok(out),
+        _ => attitude_update_joseph(&x1, &p1, z, r),
     }
 }
 
@@ -653,6 +729,111 @@ mod tests {
 
     pub(crate) fn random_motion_cov(rng: &mut SmallRng) -> MotionMat {
         random_cov::<6>(rng, &[0.05, 0.05, 0.03, 0.01, 0.01, 0.02])
+    }
+
+    #[test]
+    fn scale_reversion_is_the_gauss_markov_prediction() {
+        // s' = 1 + ρ(s − 1) + w, var w = q: F = I except F_ss = ρ, P' = F P Fᵀ + q e_s e_sᵀ
+        // (dense, in f64); and the stationary law N(1, σ²) is kept: P_ss = σ², no
+        // correlations, stays σ² for any ρ with q = (1 − ρ²)σ².
+        let mut rng = SmallRng::seed_from_u64(41);
+        for _ in 0..50 {
+            let x = random_state(&mut rng);
+            let p = random_state_cov(&mut rng, p_of3(&x).norm());
+            let rho: f32 = rng.random_range(0.5..1.0);
+            let q: f32 = rng.random_range(0.0..1e-3);
+            let mut inp = StepInput::new(&MotionVec::zeros(), &MotionMat::zeros(), &Vec3::x(), 1.0);
+            inp.scale_rev = Some((rho, q));
+            let (mut x1, mut p1) = (x, p);
+            inp.revert_scale(&mut x1, &mut p1);
+            let mut f = M::<f64, 10, 10>::identity();
+            f[(I_S, I_S)] = rho as f64;
+            let mut want = f * p.cast::<f64>() * f.transpose();
+            want[(I_S, I_S)] += q as f64;
+            for i in 0..10 {
+                for j in 0..10 {
+                    let sc = (want[(i, i)] * want[(j, j)]).sqrt().max(1e-12);
+                    assert!(((p1[(i, j)] as f64) - want[(i, j)]).abs() / sc < 1e-5);
+                }
+                let xi = if i == I_S {
+                    1.0 + rho * (x[I_S] - 1.0)
+                } else {
+                    x[i]
+                };
+                assert!((x1[i] - xi).abs() <= 1e-6 * (1.0 + xi.abs()));
+            }
+        }
+        let sigma2 = 0.02f32 * 0.02;
+        let mut p = StateMat::identity();
+        p[(I_S, I_S)] = sigma2;
+        let mut x = StateVec::zeros();
+        x[I_S] = 1.0;
+        let rho = 0.9;
+        let mut inp = StepInput::new(&MotionVec::zeros(), &MotionMat::zeros(), &Vec3::x(), 1.0);
+        inp.scale_rev = Some((rho, (1.0 - rho * rho) * sigma2));
+        inp.revert_scale(&mut x, &mut p);
+        assert!((p[(I_S, I_S)] - sigma2).abs() < 1e-9);
+        assert_eq!(x[I_S], 1.0);
+    }
+
+    #[test]
+    fn gate_statistic_and_prediction_match_the_dense_forms() {
+        // The gate's d² is the step's own innovation distance (same prior, same S), and
+        // the predict-only step is the dense composition x' = f(x, u), P' = Fₓ P Fₓᵀ +
+        // F_u Q F_uᵀ (IROS eq. 10–11, 15 with no update).
+        let mut rng = SmallRng::seed_from_u64(37);
+        for n in 0..100 {
+            let x = random_state(&mut rng);
+            let p = random_state_cov(&mut rng, p_of3(&x).norm());
+            let u = random_motion(&mut rng);
+            let q = random_motion_cov(&mut rng);
+            let ab = if n % 2 == 0 {
+                Vec3::zeros()
+            } else {
+                Vec3::new(0.05, -0.03, 0.3)
+            };
+            let qa = random_cov::<3>(&mut rng, &[0.02, 0.02, 0.03]);
+            // Pulses from consistent to wildly off, either sign.
+            let prior = compose_abs(&x, &u, &ab);
+            let h = measure(&prior.x).unwrap().h;
+            let off = Vec3::from_fn(|_, _| rng.random_range(-1.0f32..1.0)) * h.norm();
+            let z = (h + off * rng.random_range(0.0f32..2.0)) * if n % 3 == 0 { -1.0 } else { 1.0 };
+            let r_var = (0.03 * h.norm()).powi(2) + 1e-5;
+            let inp = StepInput::new(&u, &q, &z, r_var).with_absolute(&ab, &qa);
+            let (_, _, inn) = step_gaussian(&inp, &x, &p).unwrap();
+            let d2 = gate_d2(&inp, &x, &p).unwrap();
+            assert!(
+                (d2 - inn.d2).abs() <= 1e-3 * (1.0 + inn.d2),
+                "{d2} vs {}",
+                inn.d2
+            );
+
+            let (x1, p1) = predict_component(&inp, &x, &p, None).unwrap();
+            let qf = inp.q_for(&x);
+            let dense = p_dense(&prior, &p, &qf);
+            for i in 0..10 {
+                let sd = dense[(i, i)].sqrt().max(1e-6);
+                let mut d = x1[i] - prior.x[i];
+                if i < 3 {
+                    d = wrap_pi(d);
+                }
+                assert!(
+                    d.abs() <= 1e-3 * sd + 1e-5,
+                    "x[{i}]: {} vs {}",
+                    x1[i],
+                    prior.x[i]
+                );
+                for j in 0..10 {
+                    let sc = (dense[(i, i)] * dense[(j, j)]).sqrt().max(1e-12);
+                    let e = (p1[(i, j)] - dense[(i, j)]).abs() / sc;
+                    assert!(e < 1e-3, "P[{i},{j}]: {} vs {}", p1[(i, j)], dense[(i, j)]);
+                }
+            }
+        }
+    }
+
+    fn p_dense(prior: &super::super::model::Composition, p: &StateMat, q: &MotionMat) -> StateMat {
+        prior.fx * p * prior.fx.transpose() + prior.fu * q * prior.fu.transpose()
     }
 
     #[test]

@@ -166,6 +166,9 @@ pub enum StepOutcome {
     /// Every component had been inconsistent with the pulses for several pulses (or none
     /// survived): the mixture was rebuilt from this pulse.
     Reinitialized,
+    /// The pulse failed the outlier gate for every component (both signs): the mixture
+    /// followed the motion, but the pulse updated neither states nor weights.
+    Withheld,
 }
 
 /// Diagnostics of one step.
@@ -288,7 +291,8 @@ pub struct SogConfig {
     /// Components with less weight than this are never split.
     pub split_min_weight: f32,
     /// Innovation gate (squared Mahalanobis, 3 dof) above which a component is
-    /// inconsistent with a pulse.
+    /// inconsistent with a pulse; a pulse above it for every component is withheld
+    /// as an outlier (`StepOutcome::Withheld`). The default 16.27 is χ²₃ at 99.9 %.
     pub divergence_d2: f32,
     /// Consecutive pulses on which every component must be inconsistent before the
     /// mixture is rebuilt.
@@ -302,6 +306,14 @@ pub struct SogConfig {
     /// transmitter and explains the pulses by a scale the calibration rules out. The
     /// default 16 is the 4σ gate (1-dof tail ≈ 6e-5); ignored with a known trajectory.
     pub scale_divergence_d2: f32,
+    /// Correlation time (s) of the step-length scale: the scale is a first-order
+    /// Gauss–Markov process `s − 1` around the calibrated length with stationary σ
+    /// `scale_sigma` (a walker's step length wanders with snow, slope and fatigue, while
+    /// the calibration bounds how far). Over a pulse interval `Δt`,
+    /// `s' = 1 + ρ(s − 1)`, `P_ss' = ρ² P_ss + (1 − ρ²)·scale_sigma²`, `ρ = e^{−Δt/τ}`.
+    /// It keeps the scale from integrating small linearization biases over an hour
+    /// (`hal-sim/reports/reliability.md`, soak). 0 = a walk-long constant (IROS 2006).
+    pub scale_tau_s: f32,
 }
 
 impl Default for SogConfig {
@@ -327,6 +339,7 @@ impl Default for SogConfig {
             divergence_d2: 16.27,
             divergence_pulses: 5,
             scale_divergence_d2: 16.0,
+            scale_tau_s: 300.0,
         }
     }
 }
@@ -379,6 +392,7 @@ impl SogConfig {
             self.split_min_weight,
             self.divergence_d2,
             self.scale_divergence_d2,
+            self.scale_tau_s,
         ];
         if !finite.iter().all(|v| v.is_finite()) {
             return Err(EstimateError::InvalidConfig);
@@ -403,7 +417,8 @@ impl SogConfig {
             && self.split_min_weight >= 0.0
             && self.divergence_d2 > 0.0
             && self.divergence_pulses > 0
-            && self.scale_divergence_d2 >= 0.0;
+            && self.scale_divergence_d2 >= 0.0
+            && self.scale_tau_s >= 0.0;
         if ok {
             Ok(())
         } else {

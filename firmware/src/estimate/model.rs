@@ -149,6 +149,9 @@ impl CompositionJac {
 /// `p' = p − R(Ψ)·(s·Δp + a)`, `m' = m`, `s' = s`, from the rotations `ra = R(Ψ)` and
 /// `rb = R(ΔΨ)` (with their partials) already evaluated at `x` and `u`; `a` is the
 /// absolute (unscaled) translation in `R_{k-1}` (m).
+// Inlined into every caller: the hot step (`step_gaussian`) must not pay a call for
+// sharing it with the outlier gate and the predict-only step.
+#[inline(always)]
 pub(crate) fn compose_rot(
     x: &StateVec,
     u: &MotionVec,
@@ -208,6 +211,9 @@ pub(crate) fn measure(x: &StateVec) -> Result<Measurement, DipoleError> {
 }
 
 /// [`measure`] with `rot = R(Ψ)` and its partials already evaluated at `x`.
+// Inlined into every caller: the hot step (`step_gaussian`) must not pay a call for
+// sharing it with the outlier gate and the predict-only step.
+#[inline(always)]
 pub(crate) fn measure_rot(x: &StateVec, rot: &Rot) -> Result<Measurement, DipoleError> {
     let fj = field_with_jacobians(&(-p_of(x)), &m_of(x))?;
     let rt = rot.r.transpose();

@@ -17,7 +17,7 @@
 //! (eq. 17), check divergence, prune, merge near-duplicates and split where needed
 //! (heaviest components first).
 
-use super::gaussian::{Component, StepInput, step_component};
+use super::gaussian::{Component, StepInput, gate_d2, predict_component, step_component};
 use super::init::initialize;
 use super::mixture::{merge, moment_mean, normalize, position_moments, prune, split};
 use super::model::{FIELD_SCALE, I_RPY, I_S, MOMENT_SCALE, MotionMat, MotionVec};
@@ -32,6 +32,16 @@ use heapless::Vec;
 /// Capacity of the default filter: 240 components × 264 bytes = 63 360 bytes, which
 /// fits the STM32F405's 64 KB core-coupled RAM.
 pub const SOG_CAPACITY: usize = 240;
+
+/// Longest run of consecutive pulses the outlier gate withholds. An interferer, another
+/// device or a corrupted vector gives isolated pulses between the transmitter's regular
+/// ones (one every ≈ 1 s), so one pulse that fails the gate after a consistent pulse is
+/// withheld. A mixture that lost the transmitter, a transmitter that moved, or a
+/// mixture grown overconfident fails on every pulse: from the second failure on, the
+/// pulses update the mixture as before (they are the best information there is) and
+/// `divergence_pulses` consecutive failures rebuild it (IROS Algorithm 1's
+/// re-initialization), which withholding them all would only delay.
+const OUTLIER_RUN: u8 = 1;
 
 /// The filter with the default capacity.
 pub type DefaultSog = SogFilter<SOG_CAPACITY>;
@@ -159,6 +169,105 @@ impl<const N: usize> SogFilter<N> {
         let outcome = if n > 0 { outcome } else { StepOutcome::Waiting };
         StepReport::new(outcome, n)
     }
+
+    /// `(ρ, (1 − ρ²)·σ_s²)` of the scale's mean reversion from the last pulse to `t`
+    /// (see `SogConfig::scale_tau_s`); `None` when the scale is a constant (τ = 0, no
+    /// scale uncertainty, a known trajectory, or no previous pulse).
+    fn scale_reversion(&self, t: f32) -> Option<(f32, f32)> {
+        let tau = self.config.scale_tau_s;
+        let s0 = self.config.scale_sigma * self.config.scale_sigma;
+        let dt = t - self.last_t?;
+        if tau <= 0.0 || s0 <= 0.0 || self.exact_motion() || dt <= 0.0 {
+            return None;
+        }
+        let rho = libm::expf(-dt / tau);
+        Some((rho, (1.0 - rho * rho) * s0))
+    }
+
+    /// The outlier gate: `Some(smallest d²)` when the pulse fails the χ² gate
+    /// `divergence_d2` (3 dof) for every component with both signs ([`gate_d2`]),
+    /// `None` as soon as one component explains it. Under the model each component's
+    /// `d²` is χ²(3) when it holds the truth, so a pulse no component explains is, at
+    /// the 0.1 % level, not the transmitter's: an interferer, another device, a
+    /// corrupted vector. Components are tried heaviest first (they carry the estimate
+    /// and nearly always explain a real pulse) and the scan stops at the first
+    /// consistent one, so a normal pulse costs about one component's gate statistic
+    /// (≈ ⅓ of its step; the sort, a few thousand instructions).
+    #[inline(never)]
+    fn outlier_d2(&self, inp: &StepInput) -> Option<f32> {
+        let mut order: Vec<(f32, u16), N> = Vec::new();
+        for (i, c) in self.comps.iter().enumerate() {
+            let _ = order.push((c.log_w, i as u16));
+        }
+        order.sort_unstable_by(|a, b| b.0.total_cmp(&a.0));
+        let mut best = f32::INFINITY;
+        for c in order
+            .iter()
+            .filter_map(|&(_, i)| self.comps.get(usize::from(i)))
+        {
+            let (mut x, mut p) = (c.x, c.p());
+            inp.revert_scale(&mut x, &mut p);
+            match gate_d2(inp, &x, &p) {
+                Ok(d2) if d2 <= self.config.divergence_d2 => return None,
+                Ok(d2) => best = best.min(d2),
+                Err(_) => {}
+            }
+        }
+        Some(best)
+    }
+
+    /// A pulse the outlier gate refused: the mixture follows the receiver's motion
+    /// ([`predict_component`]) but the pulse updates neither states nor weights
+    /// (`Withheld`). It counts as an inconsistent pulse towards `divergence_pulses`
+    /// (see [`OUTLIER_RUN`]); isolated outliers between consistent pulses never reach
+    /// that count.
+    #[cold]
+    #[inline(never)]
+    fn withhold(
+        &mut self,
+        inp: &StepInput,
+        att: Option<(&Vec3, &Mat3)>,
+        attitude: &Attitude,
+        z: &Vec3,
+        best_d2: f32,
+        mark: &mut impl FnMut(Phase),
+    ) -> StepReport {
+        self.inconsistent_pulses = self.inconsistent_pulses.saturating_add(1);
+        let mut dropped = 0u16;
+        if self.inconsistent_pulses < self.config.divergence_pulses {
+            let mut i = 0;
+            while let Some(c) = self.comps.get(i).copied() {
+                let (mut x0, mut p0) = (c.x, c.p());
+                inp.revert_scale(&mut x0, &mut p0);
+                match predict_component(inp, &x0, &p0, att) {
+                    Ok((x, p)) => {
+                        if let Some(slot) = self.comps.get_mut(i) {
+                            *slot = Component::new(x, &p, c.log_w);
+                        }
+                        i += 1;
+                    }
+                    Err(_) => {
+                        self.comps.swap_remove(i);
+                        dropped += 1;
+                    }
+                }
+                mark(Phase::Update);
+            }
+            if !self.comps.is_empty() {
+                if dropped > 0 {
+                    normalize(&mut self.comps);
+                }
+                let mut report = StepReport::new(StepOutcome::Withheld, self.comps.len());
+                report.best_d2 = best_d2;
+                report.dropped = dropped;
+                return report;
+            }
+        }
+        let mut report = self.try_initialize(attitude, z, StepOutcome::Reinitialized);
+        report.dropped = dropped;
+        report.best_d2 = best_d2;
+        report
+    }
 }
 
 /// The phases of a step, reported to the `mark` callback of
@@ -203,6 +312,7 @@ impl<const N: usize> SogFilter<N> {
         check_covariance(&motion.absolute_cov)?;
         check_covariance(&attitude.cov)?;
         check_physical_range(motion, attitude)?;
+        let scale_rev = self.scale_reversion(pulse.t);
         self.last_t = Some(pulse.t);
         let z = pulse.h * FIELD_SCALE;
 
@@ -232,6 +342,7 @@ impl<const N: usize> SogFilter<N> {
         let att_r = (attitude.cov + attitude.cov.transpose()) * 0.5;
 
         let mut inp = StepInput::new(&u, &q, &z, r_var);
+        inp.scale_rev = scale_rev;
         if motion.has_absolute() {
             // With a known trajectory the absolute part is exact too.
             let qa = if self.exact_motion() {
@@ -242,6 +353,13 @@ impl<const N: usize> SogFilter<N> {
             inp = inp.with_absolute(&motion.absolute, &qa);
         }
         mark(Phase::Setup);
+        let att = fuse_attitude.then_some((&attitude.rpy, &att_r));
+        // Outlier gate, only on a pulse that follows a consistent one (see `OUTLIER_RUN`).
+        if self.inconsistent_pulses < OUTLIER_RUN
+            && let Some(best_d2) = self.outlier_d2(&inp)
+        {
+            return Ok(self.withhold(&inp, att, attitude, &z, best_d2, &mut mark));
+        }
         // Scale-prior divergence (see `SogConfig::scale_divergence_d2`): the posterior
         // mean of a consistent Gaussian has ŝ − 1 ~ N(0, σ_s² − P_ss).
         let s0 = self.config.scale_sigma * self.config.scale_sigma;
@@ -266,8 +384,9 @@ impl<const N: usize> SogFilter<N> {
             let Some(c) = self.comps.get(i).copied() else {
                 break;
             };
-            let att = fuse_attitude.then_some((&attitude.rpy, &att_r));
-            let stepped = step_component(&inp, &c.x, &c.p(), att);
+            let (mut x0, mut p0) = (c.x, c.p());
+            inp.revert_scale(&mut x0, &mut p0);
+            let stepped = step_component(&inp, &x0, &p0, att);
             mark(Phase::Update);
             match stepped {
                 Ok((x, p, inn)) => {
@@ -708,18 +827,68 @@ mod tests {
         }
         p_t = Vec3::new(-3.0, 4.0, -1.5);
         let m2 = Vec3::new(0.0, 0.02, 0.0);
-        let mut reinit = false;
+        // The first is withheld by the outlier gate, the next ones update, and the
+        // `divergence_pulses`-th consecutive inconsistent pulse rebuilds the mixture.
+        let mut outcomes = std::vec::Vec::new();
         for _ in 0..12 {
             let h = crate::dipole::field(&(-p_t), &m2).unwrap();
             let r = f.step(&still, &att, &Pulse { h, t }).unwrap();
             t += 1.0;
+            outcomes.push(r.outcome);
             if r.outcome == StepOutcome::Reinitialized {
-                reinit = true;
                 break;
             }
         }
-        assert!(reinit);
+        let n = usize::from(f.config().divergence_pulses);
+        assert_eq!(outcomes.len(), n, "{outcomes:?}");
+        assert_eq!(outcomes[0], StepOutcome::Withheld);
+        assert!(
+            outcomes[1..n - 1]
+                .iter()
+                .all(|o| *o == StepOutcome::Updated)
+        );
         assert!(f.is_initialized());
+    }
+
+    #[test]
+    fn isolated_outliers_are_withheld_and_leave_the_weights_alone() {
+        // Converge on a transmitter, then interleave consistent pulses with outliers (a
+        // strong field from elsewhere): each outlier is withheld (weights untouched, the
+        // state only follows the motion), the consecutive count never reaches the
+        // divergence threshold, and the estimate stays where the consistent pulses put it.
+        let (mut f, att) = initialized_filter();
+        let m = Vec3::new(0.01, 0.0, 0.005);
+        let p_t = Vec3::new(30.0, -5.0, -2.0);
+        let still = Displacement::with_sigmas(Vec3::zeros(), Rpy::zeros(), 0.01, 0.001);
+        let mut t = 2.0;
+        for _ in 0..10 {
+            let h = crate::dipole::field(&(-p_t), &m).unwrap();
+            f.step(&still, &att, &Pulse { h, t }).unwrap();
+            t += 1.0;
+        }
+        // A twin that never hears the outliers.
+        let mut twin = f.clone();
+        let outlier = crate::dipole::field(&Vec3::new(2.0, 3.0, -1.0), &m).unwrap();
+        for k in 0..20 {
+            if k % 2 == 0 {
+                let w0: std::vec::Vec<f32> = f.components().map(|c| c.0).collect();
+                let r = f.step(&still, &att, &Pulse { h: outlier, t }).unwrap();
+                assert_eq!(r.outcome, StepOutcome::Withheld);
+                assert!(r.best_d2 > f.config().divergence_d2);
+                let w1: std::vec::Vec<f32> = f.components().map(|c| c.0).collect();
+                assert_eq!(w0, w1);
+            } else {
+                let h = crate::dipole::field(&(-p_t), &m).unwrap();
+                let r = f.step(&still, &att, &Pulse { h, t }).unwrap();
+                assert_eq!(r.outcome, StepOutcome::Updated);
+                twin.step(&still, &att, &Pulse { h, t }).unwrap();
+            }
+            t += 1.0;
+        }
+        // The outliers' only trace is the process noise of the motion they carried.
+        let (a, b) = (f.estimate().unwrap(), twin.estimate().unwrap());
+        let sd = b.cov.trace().sqrt();
+        assert!((a.p - b.p).norm() < 0.1 * sd, "{} vs {} (σ {sd})", a.p, b.p);
     }
 
     fn check_mixture(f: &DefaultSog) -> Result<(), TestCaseError> {
