@@ -14,8 +14,11 @@ fn three_seeded_rescues_reach_probe_near_the_victim() {
         let summary = hal_sim::demo::summary(&o);
         assert!(o.probe_t.is_some(), "{summary}");
         assert!(o.path_ratio() <= 3.0, "{summary}");
+        // A sanity bound of a working loop (a wrong mode or a lost estimate is metres off),
+        // not the accuracy target: the error's distribution over 100 seeds is in
+        // `hal-sim/reports/rescue.md` (max ≈ 0.7–0.9 m, median ≈ 0.09 m).
         let err = o.error_h_m.expect("an estimate");
-        assert!(err < 0.3, "{summary}");
+        assert!(err < 0.5, "{summary}");
         assert!(o.miss_h_m < 0.5, "{summary}");
         // The display went through the search control's states in order.
         assert_eq!(statuses.last(), Some(&"probe"), "{summary}");
