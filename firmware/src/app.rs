@@ -38,6 +38,7 @@
 use core::mem::MaybeUninit;
 
 use crate::Vec3;
+use crate::classic::{ClassicConfig, ClassicError, ClassicSearch};
 use crate::estimate::{
     self, Attitude, EstimateError, Estimator, SogConfig, StepOutcome, VictimEstimate,
 };
@@ -69,6 +70,26 @@ pub enum AppError {
     NonFinite,
     /// Mark pressed with no victim being guided to.
     NoTarget,
+    /// The pulse or configuration was refused by the classic mode.
+    Classic(ClassicError),
+}
+
+impl From<ClassicError> for AppError {
+    fn from(e: ClassicError) -> Self {
+        AppError::Classic(e)
+    }
+}
+
+/// How the receiver guides the rescuer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum SearchMode {
+    /// The SOGs estimator per victim with its guidance (the default).
+    #[default]
+    Sog,
+    /// The classical directional search (ICRA 2006 §II-A, [`crate::classic`]): flux line,
+    /// turn-around on a falling signal, bracketing fine search; one transmitter, no
+    /// estimator. For rescuers trained on classic receivers, or as a fallback.
+    Classic,
 }
 
 impl From<MotionError> for AppError {
@@ -100,6 +121,8 @@ pub struct AppConfig {
     pub guidance: GuidanceConfig,
     /// Seconds without a pulse after which the display says "no signal".
     pub signal_timeout_s: f32,
+    /// SOGs guidance or the classic directional search.
+    pub mode: SearchMode,
 }
 
 impl AppConfig {
@@ -123,6 +146,7 @@ impl AppConfig {
             sog,
             guidance,
             signal_timeout_s: 3.5,
+            mode: SearchMode::Sog,
         }
     }
 }
@@ -221,14 +245,34 @@ pub struct Receiver {
     stats: AppStats,
     /// Time of the front end's first sample on the IMU clock, s.
     adc_epoch_s: f32,
+    /// The classic directional search, in [`SearchMode::Classic`] only.
+    classic: Option<ClassicSearch>,
+}
+
+/// The classic mode's thresholds with this receiver's pulse noise and signal timeout.
+fn classic_config(cfg: &AppConfig) -> ClassicConfig {
+    ClassicConfig {
+        sigma_bkg: cfg.sog.sigma_bkg,
+        signal_timeout_s: cfg.signal_timeout_s,
+        ..ClassicConfig::default()
+    }
 }
 
 impl Receiver {
     /// A receiver waiting for its first samples; `InvalidConfig` when the filter refuses
     /// the configuration. On the board use [`Receiver::emplace`] instead (no 88 KB move).
     pub fn new(cfg: AppConfig) -> Result<Self, AppError> {
-        VictimSog::check_config(&cfg.sog)?;
+        Self::check_config(&cfg)?;
         Ok(Self::new_checked(cfg))
+    }
+
+    /// Whether [`Receiver::new`] accepts `cfg`, without building anything.
+    fn check_config(cfg: &AppConfig) -> Result<(), AppError> {
+        VictimSog::check_config(&cfg.sog)?;
+        if cfg.mode == SearchMode::Classic {
+            ClassicSearch::new(classic_config(cfg))?;
+        }
+        Ok(())
     }
 
     /// [`Receiver::new`] for a configuration already checked: infallible, so that
@@ -249,6 +293,10 @@ impl Receiver {
             overlap: false,
             stats: AppStats::default(),
             adc_epoch_s: 0.0,
+            classic: match cfg.mode {
+                SearchMode::Sog => None,
+                SearchMode::Classic => ClassicSearch::new(classic_config(&cfg)).ok(),
+            },
         }
     }
 
@@ -259,12 +307,15 @@ impl Receiver {
     ) -> Result<&mut Receiver, AppError> {
         // Checked first, then built infallibly into the slot: a `Result<Receiver>`
         // temporary would put the whole ≈ 88 KB receiver on the stack.
-        VictimSog::check_config(&cfg.sog)?;
+        Self::check_config(&cfg)?;
         Ok(slot.write(Self::new_checked(cfg)))
     }
 
     /// Starts a new search with the same configuration.
     pub fn reset(&mut self) {
+        if let Some(c) = self.classic.as_mut() {
+            c.reset();
+        }
         self.bank.reset();
         self.target = None;
         self.motion = Motion::new(self.cfg.motion);
@@ -320,6 +371,29 @@ impl Receiver {
         self.set_target(None);
         self.select_target();
         Ok(u8::try_from(i).unwrap_or(u8::MAX).saturating_add(1))
+    }
+
+    /// A pulse in the classic mode: the directional search takes the field, the attitude
+    /// and the distance walked since the last pulse; the motion is consumed only when it
+    /// accepts the pulse.
+    fn on_pulse_classic(&mut self, t: f32, h_body: &Vec3) -> Result<DisplayModel, AppError> {
+        let mut motion = self.motion.clone();
+        let d = motion.take_displacement(t);
+        let (rpy, cov) = motion.attitude();
+        let pulse = estimate::Pulse { h: *h_body, t };
+        let Some(classic) = self.classic.as_mut() else {
+            return Err(AppError::Classic(ClassicError::BadConfig));
+        };
+        if let Err(e) = classic.on_pulse(&pulse, &Attitude { rpy, cov }, d.distance_m) {
+            self.stats.pulses_refused = self.stats.pulses_refused.saturating_add(1);
+            return Err(AppError::Classic(e));
+        }
+        self.motion = motion;
+        self.overlap = false;
+        self.pulses = self.pulses.saturating_add(1);
+        self.last_pulse_t = Some(t);
+        self.t_now = self.t_now.max(t);
+        Ok(self.display_model())
     }
 
     /// Changes the target; a new target starts a new search control.
@@ -433,6 +507,9 @@ impl Receiver {
         if !t.is_finite() || !h_body.iter().all(|v| v.is_finite()) {
             self.stats.pulses_refused = self.stats.pulses_refused.saturating_add(1);
             return Err(AppError::NonFinite);
+        }
+        if self.classic.is_some() {
+            return self.on_pulse_classic(t, h_body);
         }
         let Some(slot) = self.bank.slot_for(src, t) else {
             self.stats.other_source = self.stats.other_source.saturating_add(1);
@@ -552,6 +629,12 @@ impl Receiver {
     pub fn display_model(&self) -> DisplayModel {
         let g = &self.last;
         let yaw = self.motion.attitude().0.z;
+        if let Some(c) = &self.classic {
+            return DisplayModel {
+                overlap: self.overlap,
+                ..c.display(self.t_now, yaw)
+            };
+        }
         // The target's own pulses count: another victim's do not guide to this one.
         // Withheld (overlapping) pulses keep the target alive: its own may be among them.
         let target_t = self
@@ -689,6 +772,49 @@ mod tests {
         );
         assert_eq!(snapshot, after);
         assert_eq!(rx.display_model(), d0);
+    }
+
+    #[test]
+    fn classic_mode_guides_along_the_flux_line_without_the_estimator() {
+        let cfg = AppConfig {
+            mode: SearchMode::Classic,
+            ..config()
+        };
+        let mut rx = Receiver::new(cfg).unwrap();
+        let t = level_imu(&mut rx, 0.0, 50);
+        // Beacon 30 m to the west, moment along west: the flux line points ±west, so the
+        // arrow of a receiver facing north is ±90°, and the distance reading is finite.
+        let h =
+            crate::dipole::field(&Vec3::new(0.0, -30.0, 2.0), &Vec3::new(0.0, 0.02, 0.0)).unwrap();
+        let d = rx.on_pulse(t, &h, Some(0)).unwrap();
+        assert_eq!(d.status, Status::FluxLine);
+        assert_eq!(d.pulses, 1);
+        let a = d.arrow_deg.unwrap();
+        assert!((a.abs() - 90.0).abs() < 5.0, "arrow {a}");
+        assert!(d.distance_m.is_some_and(|r| r.is_finite() && r > 0.0));
+        // The SOGs bank is not used in this mode.
+        assert!(rx.victims().is_empty());
+        // Refusals leave the state intact and come back as the classic mode's errors.
+        let before = format!("{:?}", rx);
+        assert_eq!(
+            rx.on_pulse(t + 1.0, &Vec3::zeros(), None),
+            Err(AppError::Classic(ClassicError::ZeroField))
+        );
+        assert_eq!(
+            rx.on_pulse(t - 1.0, &h, None),
+            Err(AppError::Classic(ClassicError::TimeNotIncreasing))
+        );
+        let mut after = format!("{:?}", rx);
+        after = after.replace(
+            &format!("{:?}", rx.stats()),
+            &format!("{:?}", AppStats::default()),
+        );
+        assert_eq!(before, after);
+        // No pulse for longer than the timeout: no signal, no arrow.
+        let t2 = level_imu(&mut rx, t, 400);
+        assert!(t2 - t > cfg.signal_timeout_s);
+        let quiet = rx.display_model();
+        assert_eq!((quiet.status, quiet.arrow_deg), (Status::NoSignal, None));
     }
 
     #[test]

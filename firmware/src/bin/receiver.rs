@@ -40,7 +40,7 @@ use embedded_graphics::pixelcolor::BinaryColor;
 use embedded_graphics::prelude::*;
 use embedded_hal_bus::i2c::RefCellDevice;
 use embedded_hal_bus::spi::ExclusiveDevice;
-use firmware::app::{AppConfig, Receiver};
+use firmware::app::{AppConfig, Receiver, SearchMode};
 use firmware::drivers::ads131m04::{self, Ads131m04};
 use firmware::drivers::imu::Imu;
 use firmware::frontend::{Frontend, FrontendConfig, PulseMeasurement};
@@ -57,6 +57,9 @@ use stm32f4xx_hal::{interrupt, pac, prelude::*, rcc::Config, spi};
 const EARTH_FIELD_UT: [f32; 3] = [21.79, 0.0, -42.77];
 /// The user's calibrated step length (m), `None` until the calibration walk was done.
 const STEP_LENGTH_M: Option<f32> = None;
+/// How the receiver guides: the SOGs estimator per victim, or `SearchMode::Classic` for
+/// the classical directional search (flux line + bracketing, one transmitter).
+const SEARCH_MODE: SearchMode = SearchMode::Sog;
 /// ADC frames buffered between the DRDY interrupt and the main loop: 250 ms at 8 kSPS,
 /// room for the worst estimator step plus a display flush.
 const QUEUE_LEN: usize = 2048;
@@ -208,7 +211,10 @@ fn main() -> ! {
     let screen_ok = screen.init().is_ok();
 
     // The application in SRAM.
-    let cfg = AppConfig::new(earth, STEP_LENGTH_M);
+    let cfg = AppConfig {
+        mode: SEARCH_MODE,
+        ..AppConfig::new(earth, STEP_LENGTH_M)
+    };
     // SAFETY: the only reference ever taken to RECEIVER, here, once, before any interrupt
     // that could run is enabled; no interrupt touches it.
     let slot = unsafe { &mut *core::ptr::addr_of_mut!(RECEIVER) };
