@@ -15,12 +15,12 @@
 //! `hal-sim classic-report --tries N` runs seeds 1..=N (the scenarios of `rescue-report`)
 //! and writes a markdown report beside the numbers of `hal-sim/reports/rescue.md`.
 use crate::closed_loop::{
-    CROSS_HEIGHT_M, ClosedLoopConfig, DT, HOLD_HEIGHT_M, HOLD_OFFSET_M, Person, Pose, StartMode,
-    draw_scenario, gauss, imu_sample, walk_primary,
+    CROSS_HEIGHT_M, ClosedLoopConfig, DT, HOLD_HEIGHT_M, Person, Pose, StartMode, draw_scenario,
+    gauss, imu_sample, start_rescuer, walk_primary,
 };
 use crate::physics::{M3, V3, rotation_from_rpy};
 use crate::receiver_config::ReceiverConfig;
-use crate::rescuer::{Wobble, wrap_pi};
+use crate::rescuer::wrap_pi;
 use crate::world::earth_field_ut;
 use firmware::Vec3;
 use firmware::app::DisplayModel;
@@ -112,34 +112,8 @@ pub fn run(seed: u64) -> anyhow::Result<ClassicOutcome> {
     };
     let mut classic = ClassicSearch::new(classic_cfg)
         .map_err(|e| anyhow::anyhow!("classic mode refused its config: {e:?}"))?;
-    let bias_max = imu_noise.gyr_bias_max_rad_s;
-    let bias = V3::new(
-        rng.random_range(-bias_max..=bias_max),
-        rng.random_range(-bias_max..=bias_max),
-        rng.random_range(-bias_max..=bias_max),
-    );
     // The rescuer as in closed_loop::run (same draws in the same order).
-    let torso = [
-        sc.start.x - HOLD_OFFSET_M[0] * sc.heading.cos() + HOLD_OFFSET_M[1] * sc.heading.sin(),
-        sc.start.y - HOLD_OFFSET_M[0] * sc.heading.sin() - HOLD_OFFSET_M[1] * sc.heading.cos(),
-    ];
-    let mut person = Person {
-        c: torso,
-        psi: sc.heading,
-        psi_dot: 0.0,
-        w: 0.0,
-        w_target: 0.0,
-        phase: 0.0,
-        psi_des: sc.heading,
-        wobble: [
-            Wobble::random(&mut rng, 0.035, 0.1, 1.0),
-            Wobble::random(&mut rng, 0.035, 0.1, 1.0),
-            Wobble::random(&mut rng, 0.07, 0.05, 0.5),
-        ],
-        hold_height: HOLD_HEIGHT_M,
-        crawl_to: None,
-        lift_t0: None,
-    };
+    let (bias, mut person) = start_rescuer(&sc, imu_noise.gyr_bias_max_rad_s, &mut rng);
     let tx_p = V3::from(sc.tx.position);
     let ideal = (tx_p - sc.start).xy().norm();
     let max_path = cfg.max_path_factor * ideal + 20.0;

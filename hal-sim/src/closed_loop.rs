@@ -253,6 +253,42 @@ impl Outcome {
     }
 }
 
+/// The gyro bias and the rescuer standing at the scenario's start, drawn from `rng` in this
+/// order (every closed loop draws them alike, so one seed gives one rescuer).
+pub(crate) fn start_rescuer(
+    sc: &Scenario,
+    gyr_bias_max: f64,
+    rng: &mut ChaCha8Rng,
+) -> (V3, Person) {
+    let bias = V3::new(
+        rng.random_range(-gyr_bias_max..=gyr_bias_max),
+        rng.random_range(-gyr_bias_max..=gyr_bias_max),
+        rng.random_range(-gyr_bias_max..=gyr_bias_max),
+    );
+    let torso = [
+        sc.start.x - HOLD_OFFSET_M[0] * sc.heading.cos() + HOLD_OFFSET_M[1] * sc.heading.sin(),
+        sc.start.y - HOLD_OFFSET_M[0] * sc.heading.sin() - HOLD_OFFSET_M[1] * sc.heading.cos(),
+    ];
+    let person = Person {
+        c: torso,
+        psi: sc.heading,
+        psi_dot: 0.0,
+        w: 0.0,
+        w_target: 0.0,
+        phase: 0.0,
+        psi_des: sc.heading,
+        wobble: [
+            Wobble::random(rng, 0.035, 0.1, 1.0),
+            Wobble::random(rng, 0.035, 0.1, 1.0),
+            Wobble::random(rng, 0.07, 0.05, 0.5),
+        ],
+        hold_height: HOLD_HEIGHT_M,
+        crawl_to: None,
+        lift_t0: None,
+    };
+    (bias, person)
+}
+
 pub(crate) fn gauss(rng: &mut impl Rng) -> f64 {
     StandardNormal.sample(rng)
 }
@@ -509,33 +545,7 @@ pub fn run(
     let mut rx = Box::new(
         Receiver::new(app).map_err(|e| anyhow::anyhow!("receiver refused its config: {e:?}"))?,
     );
-    let bias_max = imu_noise.gyr_bias_max_rad_s;
-    let bias = V3::new(
-        rng.random_range(-bias_max..=bias_max),
-        rng.random_range(-bias_max..=bias_max),
-        rng.random_range(-bias_max..=bias_max),
-    );
-    let torso = [
-        sc.start.x - HOLD_OFFSET_M[0] * sc.heading.cos() + HOLD_OFFSET_M[1] * sc.heading.sin(),
-        sc.start.y - HOLD_OFFSET_M[0] * sc.heading.sin() - HOLD_OFFSET_M[1] * sc.heading.cos(),
-    ];
-    let mut person = Person {
-        c: torso,
-        psi: sc.heading,
-        psi_dot: 0.0,
-        w: 0.0,
-        w_target: 0.0,
-        phase: 0.0,
-        psi_des: sc.heading,
-        wobble: [
-            Wobble::random(&mut rng, 0.035, 0.1, 1.0),
-            Wobble::random(&mut rng, 0.035, 0.1, 1.0),
-            Wobble::random(&mut rng, 0.07, 0.05, 0.5),
-        ],
-        hold_height: HOLD_HEIGHT_M,
-        crawl_to: None,
-        lift_t0: None,
-    };
+    let (bias, mut person) = start_rescuer(&sc, imu_noise.gyr_bias_max_rad_s, &mut rng);
     let primary = (cfg.start == StartMode::PrimarySearch).then_some(sc.heading);
     let mut ds = Directional::default();
     let mut first_rx: Option<(f64, V3, u64, f64)> = None;
