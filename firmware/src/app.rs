@@ -49,7 +49,7 @@ use crate::guidance::{
     to_degrees_wrapped,
 };
 use crate::motion::{Motion, MotionConfig, MotionError};
-use crate::victims::{MAX_VICTIMS, VictimBank, VictimSog};
+use crate::victims::{MAX_VICTIMS, MotionCut, VictimBank, VictimSog};
 
 /// The target switches to another unmarked victim only when that one is nearer than this
 /// fraction of the target's horizontal distance...
@@ -430,20 +430,18 @@ impl Receiver {
         // Work on a copy of the motion state: the displacement is only consumed when the
         // estimator accepts the pulse.
         let mut motion = self.motion.clone();
-        let d = motion.take_displacement(t);
-        let displacement = estimate::Displacement {
-            translation: d.translation,
-            rotation: d.rotation,
-            cov: d.cov,
-            absolute: d.absolute,
-            absolute_cov: d.absolute_cov,
-        };
+        let split = motion.take_split(t);
         let (rpy, cov) = motion.attitude();
         let attitude = Attitude { rpy, cov };
         let pulse = estimate::Pulse { h: *h_body, t };
-        let stepped = self
-            .bank
-            .step(slot, src, &displacement, d.distance_m, &attitude, &pulse);
+        let cut = MotionCut {
+            cut: to_estimate(&split.cut),
+            partial: to_estimate(&split.partial),
+            back: to_estimate(&split.back),
+            distance_m: split.cut.distance_m,
+            partial_m: split.partial.distance_m,
+        };
+        let stepped = self.bank.step(slot, src, &cut, &attitude, &pulse);
         let (report, own) = match stepped {
             Ok(r) => r,
             Err(e) => {
@@ -594,6 +592,17 @@ impl Receiver {
             }
         }
         list
+    }
+}
+
+/// The motion pipeline's displacement as the estimators take it.
+fn to_estimate(d: &crate::motion::Displacement) -> estimate::Displacement {
+    estimate::Displacement {
+        translation: d.translation,
+        rotation: d.rotation,
+        cov: d.cov,
+        absolute: d.absolute,
+        absolute_cov: d.absolute_cov,
     }
 }
 

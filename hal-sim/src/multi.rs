@@ -570,6 +570,9 @@ pub struct Args {
     /// Seeded rescues per layout (seeds 1..=tries; the victim count cycles 2, 3, 4).
     #[arg(long, default_value_t = 60)]
     pub tries: u64,
+    /// First seed (seeds first-seed..first-seed+tries), e.g. to check on unseen seeds.
+    #[arg(long, default_value_t = 1)]
+    pub first_seed: u64,
     /// Write the markdown report here (default: stdout only).
     #[arg(long)]
     pub out: Option<std::path::PathBuf>,
@@ -593,13 +596,19 @@ pub fn report(args: &Args, out: &mut dyn std::io::Write) -> anyhow::Result<()> {
     let mut md = String::new();
     let _ = writeln!(
         md,
-        "## Multiple burials (`cargo run -p hal-sim --release -- multi-report --tries {}`)\n",
-        args.tries
+        "## Multiple burials (`cargo run -p hal-sim --release -- multi-report --tries {}{}`)\n",
+        args.tries,
+        if args.first_seed == 1 {
+            String::new()
+        } else {
+            format!(" --first-seed {}", args.first_seed)
+        }
     );
     md.push_str(PROTOCOL);
     let mut all: Vec<MultiOutcome> = Vec::new();
     for layout in Layout::ALL {
-        let runs: Vec<MultiOutcome> = (1..=args.tries)
+        let seeds = args.first_seed..args.first_seed.saturating_add(args.tries);
+        let runs: Vec<MultiOutcome> = seeds
             .into_par_iter()
             .map(|seed| run(&MultiConfig::new(seed, victims_for(seed), layout)))
             .collect::<anyhow::Result<_>>()?;
@@ -927,5 +936,42 @@ mod tests {
         for v in &o.victims {
             assert!(v.error_h_m.unwrap() < 0.5, "{v:?}");
         }
+    }
+
+    /// Diagnostic trace of one rescue (`MULTI_TRACE=seed,layout-index`), not a check.
+    #[test]
+    #[ignore]
+    fn trace_one_rescue() {
+        let spec = std::env::var("MULTI_TRACE").unwrap_or_else(|_| "4,0".into());
+        let mut it = spec.split(',').map(|v| v.parse::<u64>().unwrap());
+        let (seed, layout) = (it.next().unwrap(), it.next().unwrap() as usize);
+        let cfg = MultiConfig::new(seed, victims_for(seed), Layout::ALL[layout]);
+        let mut last = -10.0;
+        let o = run_with(&cfg, &mut |e, rx| {
+            let t = match e {
+                Event::Pulse(t) => t,
+                Event::Mark(t, n) => {
+                    println!("{t:.1} MARK {n}");
+                    t
+                }
+            };
+            if t - last < 5.0 {
+                return;
+            }
+            last = t;
+            let d = rx.display_model();
+            let rows: Vec<String> = d
+                .list
+                .iter()
+                .flatten()
+                .map(|r| format!("#{}:{:?}{}", r.number, r.distance_m.map(|x| (x * 10.0).round() / 10.0), if r.marked { "M" } else { "" }))
+                .collect();
+            println!(
+                "{t:.1} {:?} tgt {:?} dist {:?} unc {:?} walk {:?} {}",
+                d.status, d.target, d.horizontal_m, d.uncertainty_m, d.walk_m, rows.join(" ")
+            );
+        })
+        .unwrap();
+        println!("{:?}", o.victims);
     }
 }

@@ -162,6 +162,27 @@ pub struct Motion {
     lift_hold: bool,
 }
 
+/// A pulse's cut of the motion when several victims share it ([`Motion::take_split`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SplitDisplacement {
+    /// The motion since the previous cut, without the step in progress.
+    pub cut: Displacement,
+    /// The step in progress credited at the pulse, from `R_k` to `R_k` moved.
+    pub partial: Displacement,
+    /// Its inverse: where the pulse's own victim's next motion starts.
+    pub back: Displacement,
+}
+
+/// Where a pulse cuts the running interval.
+struct Cut {
+    t: f32,
+    rk: Mat3,
+    yaw_now: f32,
+    partial: f32,
+    var: f32,
+    bias_var: f32,
+}
+
 impl Motion {
     /// A pipeline waiting for its first IMU sample.
     pub fn new(cfg: MotionConfig) -> Self {
@@ -327,14 +348,95 @@ impl Motion {
     /// "still" with a σ of 1 m and 0.5 rad. A non-finite `t_pulse` is treated as the last
     /// sample's time.
     pub fn take_displacement(&mut self, t_pulse: f32) -> Displacement {
+        let Some(c) = self.cut_at(t_pulse) else {
+            return Displacement::still(1.0, 0.5);
+        };
+        let noise = self.cfg.noise;
+        let Some(run) = self.run.as_mut() else {
+            return Displacement::still(1.0, 0.5);
+        };
+        let mut closing = run.interval;
+        if c.partial > 0.0 {
+            closing.add_stride(c.t, c.partial, c.yaw_now, c.var, &noise);
+        }
+        let mut d = closing.close(c.t, &c.rk, &noise, c.bias_var);
+        if let Some((dz, var)) = self.lift.take() {
+            // The world-vertical excursion in R_{k-1} axes: R_{k-1}ᵀ e_z = row 2 of R_{k-1}.
+            let r0 = closing.start_rotation();
+            let e = Vec3::new(r0[(2, 0)], r0[(2, 1)], r0[(2, 2)]);
+            d.absolute = e * dz;
+            // Rank one, plus 1 mm² so that the correlations stay within [-1, 1] in f32.
+            d.absolute_cov = e * e.transpose() * var.max(0.0) + Mat3::identity() * 1e-6;
+        }
+        let mut next = Interval::new(c.t, c.rk);
+        if c.partial > 0.0 {
+            next.add_stride(c.t, -c.partial, c.yaw_now, c.var, &noise);
+        }
+        run.interval = next;
+        d
+    }
+
+    /// [`Motion::take_displacement`] for several victims: the interval is cut at the pulse
+    /// *without* the step in progress, which is returned apart (`partial`, in `R_k`
+    /// axes) with its inverse (`back`). The pulse's own victim composes `cut ⊕ partial`
+    /// (the same motion as `take_displacement`) and starts its next motion from `back`;
+    /// every other victim composes `cut` only. So the partial step credited at another
+    /// victim's pulse never enters a victim's motion twice (once forward, once back,
+    /// with independent variances), and a victim's `Q_k` does not grow with the number
+    /// of transmitters heard in between.
+    pub fn take_split(&mut self, t_pulse: f32) -> SplitDisplacement {
+        let zero = Displacement::still(0.0, 0.0);
+        let Some(c) = self.cut_at(t_pulse) else {
+            return SplitDisplacement {
+                cut: Displacement::still(1.0, 0.5),
+                partial: zero,
+                back: zero,
+            };
+        };
+        let noise = self.cfg.noise;
+        let Some(run) = self.run.as_mut() else {
+            return SplitDisplacement {
+                cut: Displacement::still(1.0, 0.5),
+                partial: zero,
+                back: zero,
+            };
+        };
+        let closing = run.interval;
+        let mut cut = closing.close(c.t, &c.rk, &noise, c.bias_var);
+        if let Some((dz, var)) = self.lift.take() {
+            // The world-vertical excursion in R_{k-1} axes: R_{k-1}ᵀ e_z = row 2 of R_{k-1}.
+            let r0 = closing.start_rotation();
+            let e = Vec3::new(r0[(2, 0)], r0[(2, 1)], r0[(2, 2)]);
+            cut.absolute = e * dz;
+            // Rank one, plus 1 mm² so that the correlations stay within [-1, 1] in f32.
+            cut.absolute_cov = e * e.transpose() * var.max(0.0) + Mat3::identity() * 1e-6;
+        }
+        run.interval = Interval::new(c.t, c.rk);
+        let stride = |d: f32| {
+            if c.partial > 0.0 {
+                let mut i = Interval::new(c.t, c.rk);
+                i.add_stride(c.t, d, c.yaw_now, c.var, &noise);
+                i.close(c.t, &c.rk, &noise, 0.0)
+            } else {
+                zero
+            }
+        };
+        SplitDisplacement {
+            cut,
+            partial: stride(c.partial),
+            back: stride(-c.partial),
+        }
+    }
+
+    /// Where and how to cut the running interval at `t_pulse`: the attitude there and the
+    /// step in progress (`None` before the first IMU sample).
+    fn cut_at(&mut self, t_pulse: f32) -> Option<Cut> {
         let noise = self.cfg.noise;
         let max_gap = self.cfg.max_gap_s;
         let last_step = self.det.last_step();
         let pending = self.det.pending_peak();
         let max_interval = self.cfg.steps.max_interval_s;
-        let Some(run) = self.run.as_mut() else {
-            return Displacement::still(1.0, 0.5);
-        };
+        let run = self.run.as_mut()?;
         let t = if t_pulse.is_finite() {
             t_pulse
         } else {
@@ -369,28 +471,17 @@ impl Motion {
         };
         let partial = frac * run.last_length;
         let sp = sigma_steps * run.last_length;
-        let mut closing = run.interval;
-        if partial > 0.0 {
-            closing.add_stride(t, partial, yaw_now, sp * sp, &noise);
-        }
         // Residual gyro-bias uncertainty drifts the relative rotation over the interval.
         let pb = run.att.error_cov();
         let bias_var = pb[(3, 3)].max(pb[(4, 4)]).max(pb[(5, 5)]);
-        let mut d = closing.close(t, &rk, &noise, bias_var);
-        if let Some((dz, var)) = self.lift.take() {
-            // The world-vertical excursion in R_{k-1} axes: R_{k-1}ᵀ e_z = row 2 of R_{k-1}.
-            let r0 = closing.start_rotation();
-            let e = Vec3::new(r0[(2, 0)], r0[(2, 1)], r0[(2, 2)]);
-            d.absolute = e * dz;
-            // Rank one, plus 1 mm² so that the correlations stay within [-1, 1] in f32.
-            d.absolute_cov = e * e.transpose() * var.max(0.0) + Mat3::identity() * 1e-6;
-        }
-        let mut next = Interval::new(t, rk);
-        if partial > 0.0 {
-            next.add_stride(t, -partial, yaw_now, sp * sp, &noise);
-        }
-        run.interval = next;
-        d
+        Some(Cut {
+            t,
+            rk,
+            yaw_now,
+            partial,
+            var: sp * sp,
+            bias_var,
+        })
     }
 
     /// Roll, pitch, yaw of the body in W (rad) and their covariance (rad²). Before the first
