@@ -49,7 +49,7 @@ use crate::guidance::{
     to_degrees_wrapped,
 };
 use crate::motion::{Motion, MotionConfig, MotionError};
-use crate::victims::{MAX_VICTIMS, MotionCut, VictimBank, VictimSog};
+use crate::victims::{MAX_VICTIMS, MotionCut, Victim, VictimBank, VictimSog};
 
 /// The target switches to another unmarked victim only when that one is nearer than this
 /// fraction of the target's horizontal distance...
@@ -153,7 +153,9 @@ pub struct DisplayModel {
     pub overlap: bool,
     /// Pulses processed so far (a new value means a new estimate).
     pub pulses: u32,
-    /// Time of the last pulse, s.
+    /// Time of the pulse the guidance shown comes from, s: the target victim's last
+    /// pulse (another victim's pulse does not renew the target's prompt; a rescuer who
+    /// stood still waits for a time after it), else the last pulse.
     pub t_s: f32,
     /// Fine search: "LIFT" — stand and lift the receiver ≈ 0.4 m and lower it within
     /// ~2 s (an absolute vertical displacement that pins the depth); steps are not
@@ -562,7 +564,12 @@ impl Receiver {
             victims: u8::try_from(self.bank.len()).unwrap_or(u8::MAX),
             overlap: self.overlap,
             pulses: self.pulses,
-            t_s: self.last_pulse_t.unwrap_or(0.0),
+            t_s: self
+                .target
+                .and_then(|i| self.bank.get(i))
+                .map(Victim::last_t)
+                .or(self.last_pulse_t)
+                .unwrap_or(0.0),
             lift: g.lift && !timed_out,
             list: self.victim_list(yaw),
             target: self
