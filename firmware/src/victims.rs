@@ -264,7 +264,9 @@ impl VictimBank {
 
     fn lost(&self, v: &Victim, t: f32) -> bool {
         let silent = t - v.last_t;
-        v.active && !v.marked && (silent > LOST_S || (v.pulses < FEW_PULSES && silent > SHORT_LOST_S))
+        v.active
+            && !v.marked
+            && (silent > LOST_S || (v.pulses < FEW_PULSES && silent > SHORT_LOST_S))
     }
 
     /// Drops the unmarked victims not heard since `t − LOST_S` (`t − SHORT_LOST_S` for

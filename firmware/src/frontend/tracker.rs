@@ -379,7 +379,7 @@ mod tests {
         assert_eq!(assigned, 2 * (130 - held));
         assert_ne!(ids[0], ids[1]);
         assert_eq!(tr.tracks().len(), 2);
-        // Without the occlusion reports both tracks expire during the overlap.
+        // Without the occlusion reports the established tracks are bridged as dormant.
         let mut bare = TransmitterTracker::new();
         for k in 0..130 {
             let (ta, tb) = (0.5 + pa * k as f32, 0.2 + pb * k as f32);
@@ -388,7 +388,50 @@ mod tests {
                 bare.assign(tb, 20.0);
             }
         }
-        assert!(bare.tracks().iter().all(|t| t.id >= 2));
+        let mut ids: Vec<u8> = bare.tracks().iter().map(|t| t.id).collect();
+        ids.sort_unstable();
+        assert_eq!(ids, vec![0, 1]);
+    }
+
+    #[test]
+    fn a_transmitter_silent_for_long_is_reattached_to_its_id() {
+        // A (1.137 s) and B (0.861 s); A falls silent (out of range) for 90 s, more than
+        // MAX_MISSED periods, and comes back with another phase: it gets its id back.
+        let mut tr = TransmitterTracker::new();
+        let (pa, pb) = (1.137f32, 0.861f32);
+        let mut pulses: Vec<(f32, f32, usize)> = Vec::new();
+        for k in 0..200 {
+            let ta = 0.3 + pa * k as f32;
+            if !(20.0..110.0).contains(&ta) {
+                pulses.push((ta + if ta > 110.0 { 0.4 } else { 0.0 }, 31.0, 0));
+            }
+            pulses.push((0.05 + pb * k as f32, -22.0, 1));
+        }
+        pulses.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut first = [None, None];
+        let mut after: Vec<u8> = Vec::new();
+        for (t, f, who) in pulses {
+            let id = tr.assign(t, f).unwrap();
+            first[who].get_or_insert(id);
+            if who == 0 && t > 110.0 {
+                after.push(id);
+            }
+        }
+        assert_ne!(first[0], first[1]);
+        // The first pulses back start a new track; from its confirmation on, A's id.
+        assert!(after.len() > 20);
+        assert!(
+            after[3..].iter().all(|id| Some(*id) == first[0]),
+            "{after:?}"
+        );
+        // B was never disturbed, and a different period is not re-attached.
+        assert_eq!(
+            tr.tracks()
+                .iter()
+                .filter(|t| Some(t.id) == first[1])
+                .count(),
+            1
+        );
     }
 
     #[test]
