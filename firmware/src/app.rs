@@ -432,17 +432,35 @@ impl Receiver {
         // Work on a copy of the motion state: the displacement is only consumed when the
         // estimator accepts the pulse.
         let mut motion = self.motion.clone();
-        let split = motion.take_split(t);
+        // A lone victim (the list holds only this pulse's own) takes the whole interval
+        // as the single filter did; with several, the cut is split (see `take_split`).
+        let lone = match self.bank.len() {
+            0 => true,
+            1 => self.bank.get(slot).is_some_and(|v| v.src() == src),
+            _ => false,
+        };
+        let cut = if lone {
+            let d = motion.take_displacement(t);
+            MotionCut {
+                cut: to_estimate(&d),
+                partial: estimate::Displacement::zero(),
+                back: estimate::Displacement::zero(),
+                distance_m: d.distance_m,
+                partial_m: 0.0,
+            }
+        } else {
+            let split = motion.take_split(t);
+            MotionCut {
+                cut: to_estimate(&split.cut),
+                partial: to_estimate(&split.partial),
+                back: to_estimate(&split.back),
+                distance_m: split.cut.distance_m,
+                partial_m: split.partial.distance_m,
+            }
+        };
         let (rpy, cov) = motion.attitude();
         let attitude = Attitude { rpy, cov };
         let pulse = estimate::Pulse { h: *h_body, t };
-        let cut = MotionCut {
-            cut: to_estimate(&split.cut),
-            partial: to_estimate(&split.partial),
-            back: to_estimate(&split.back),
-            distance_m: split.cut.distance_m,
-            partial_m: split.partial.distance_m,
-        };
         let stepped = self.bank.step(slot, src, &cut, &attitude, &pulse);
         let (report, own) = match stepped {
             Ok(r) => r,

@@ -885,7 +885,9 @@ fn summary(all: &[MultiOutcome]) -> String {
          than 5 pulses frees its slot after 6 s of silence; (2) the motion cut at every \
          pulse no longer credits the step in progress to the other victims (it was added \
          forward and back with independent variances, so each victim's Q_k grew with the \
-         number of transmitters heard in between: the σ_h ≈ 0.2–0.3 m stall); (3) the \
+         number of transmitters heard in between: the σ_h ≈ 0.2–0.3 m stall; a lone \
+         victim keeps the single filter's path, see the single-victim check below, and the \
+         per-interval floors still come with every cut); (3) the \
          display's `t_s` is the target's last pulse, so another victim's pulse no longer \
          makes a rescuer who stood still re-walk the target's stale prompt. Not done: \
          using the clean part of a partially overlapped pulse in the front end (the \
