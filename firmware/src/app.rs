@@ -49,7 +49,7 @@ use crate::guidance::{
     to_degrees_wrapped,
 };
 use crate::motion::{Motion, MotionConfig, MotionError};
-use crate::victims::{MAX_VICTIMS, VictimBank, VictimSog};
+use crate::victims::{MAX_VICTIMS, MotionCut, Victim, VictimBank, VictimSog};
 
 /// The target switches to another unmarked victim only when that one is nearer than this
 /// fraction of the target's horizontal distance...
@@ -176,7 +176,9 @@ pub struct DisplayModel {
     pub overlap: bool,
     /// Pulses processed so far (a new value means a new estimate).
     pub pulses: u32,
-    /// Time of the last pulse, s.
+    /// Time of the pulse the guidance shown comes from, s: the target victim's last
+    /// pulse (another victim's pulse does not renew the target's prompt; a rescuer who
+    /// stood still waits for a time after it), else the last pulse.
     pub t_s: f32,
     /// Fine search: "LIFT" — stand and lift the receiver ≈ 0.4 m and lower it within
     /// ~2 s (an absolute vertical displacement that pins the depth); steps are not
@@ -518,20 +520,36 @@ impl Receiver {
         // Work on a copy of the motion state: the displacement is only consumed when the
         // estimator accepts the pulse.
         let mut motion = self.motion.clone();
-        let d = motion.take_displacement(t);
-        let displacement = estimate::Displacement {
-            translation: d.translation,
-            rotation: d.rotation,
-            cov: d.cov,
-            absolute: d.absolute,
-            absolute_cov: d.absolute_cov,
+        // A lone victim (the list holds only this pulse's own) takes the whole interval
+        // as the single filter did; with several, the cut is split (see `take_split`).
+        let lone = match self.bank.len() {
+            0 => true,
+            1 => self.bank.get(slot).is_some_and(|v| v.src() == src),
+            _ => false,
+        };
+        let cut = if lone {
+            let d = motion.take_displacement(t);
+            MotionCut {
+                cut: to_estimate(&d),
+                partial: estimate::Displacement::zero(),
+                back: estimate::Displacement::zero(),
+                distance_m: d.distance_m,
+                partial_m: 0.0,
+            }
+        } else {
+            let split = motion.take_split(t);
+            MotionCut {
+                cut: to_estimate(&split.cut),
+                partial: to_estimate(&split.partial),
+                back: to_estimate(&split.back),
+                distance_m: split.cut.distance_m,
+                partial_m: split.partial.distance_m,
+            }
         };
         let (rpy, cov) = motion.attitude();
         let attitude = Attitude { rpy, cov };
         let pulse = estimate::Pulse { h: *h_body, t };
-        let stepped = self
-            .bank
-            .step(slot, src, &displacement, d.distance_m, &attitude, &pulse);
+        let stepped = self.bank.step(slot, src, &cut, &attitude, &pulse);
         let (report, own) = match stepped {
             Ok(r) => r,
             Err(e) => {
@@ -663,7 +681,12 @@ impl Receiver {
             victims: u8::try_from(self.bank.len()).unwrap_or(u8::MAX),
             overlap: self.overlap,
             pulses: self.pulses,
-            t_s: self.last_pulse_t.unwrap_or(0.0),
+            t_s: self
+                .target
+                .and_then(|i| self.bank.get(i))
+                .map(Victim::last_t)
+                .or(self.last_pulse_t)
+                .unwrap_or(0.0),
             lift: g.lift && !timed_out,
             list: self.victim_list(yaw),
             target: self
@@ -693,6 +716,17 @@ impl Receiver {
             }
         }
         list
+    }
+}
+
+/// The motion pipeline's displacement as the estimators take it.
+fn to_estimate(d: &crate::motion::Displacement) -> estimate::Displacement {
+    estimate::Displacement {
+        translation: d.translation,
+        rotation: d.rotation,
+        cov: d.cov,
+        absolute: d.absolute,
+        absolute_cov: d.absolute_cov,
     }
 }
 

@@ -16,7 +16,7 @@
 //! two motions, with first-order covariance propagation.
 //!
 //! # Memory budget (STM32F405: 64 KB CCM + 128 KB SRAM)
-//! [`MAX_VICTIMS`] = 4 slots (the front end's [`crate::frontend::MAX_TRACKS`]) of
+//! [`MAX_VICTIMS`] = 4 slots (the front end tracks up to [`crate::frontend::MAX_TRACKS`]) of
 //! [`VICTIM_CAPACITY`] = 80 components × 264 B: 84 480 B of components (320 in all).
 //! The receiver application (≈ 88 KB with this bank) lives in SRAM on the board; the ADC
 //! sample queue (32 KB) and the front end live in the 64 KB CCM instead, which leaves
@@ -33,16 +33,25 @@ use crate::estimate::{
 use crate::frame::{Rpy, compose_rpy, rotation_from_rpy, rotation_partials};
 use nalgebra::SMatrix;
 
-/// Victims followed at once: one per front-end track.
-pub const MAX_VICTIMS: usize = crate::frontend::MAX_TRACKS;
+/// Victims followed at once (the front end may track more transmitters, see
+/// [`crate::frontend::MAX_TRACKS`]; its dormant tracks keep their ids).
+pub const MAX_VICTIMS: usize = 4;
 /// Components per victim's mixture (four of them and the rest of the application fit
 /// in SRAM beside a ≥ 36 KB stack; see the memory budget above).
 pub const VICTIM_CAPACITY: usize = 80;
 /// The per-victim filter.
 pub type VictimSog = SogFilter<VICTIM_CAPACITY>;
 /// An unmarked victim not heard for this long (s) is dropped from the list (its track
-/// is lost: out of range, switched off, or re-identified by the front end).
-pub const LOST_S: f32 = 60.0;
+/// is lost: out of range or switched off). As long as the front end keeps a dormant
+/// track's id ([`crate::frontend::DORMANT_S`]), so that it comes back to its mixture.
+pub const LOST_S: f32 = crate::frontend::DORMANT_S;
+/// A victim heard fewer times than this is a track that never got established (a
+/// transmitter's first pulses before its track was re-attached, or pulses of several
+/// transmitters briefly taken as one): it is dropped after [`SHORT_LOST_S`] of silence.
+pub const FEW_PULSES: u32 = 5;
+/// Silence (s) after which a victim of fewer than [`FEW_PULSES`] pulses is dropped: a
+/// few of the longest periods, longer than the front end keeps an unconfirmed track.
+pub const SHORT_LOST_S: f32 = 6.0;
 
 type Mat6 = SMatrix<f32, 6, 6>;
 
@@ -108,6 +117,22 @@ impl Pending {
             distance_m: self.distance_m + distance_m.max(0.0),
         })
     }
+}
+
+/// The receiver's motion at one pulse, split for several victims (see
+/// [`crate::motion::Motion::take_split`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MotionCut {
+    /// The motion since the previous pulse (of any victim), without the step in progress.
+    pub cut: Displacement,
+    /// The step in progress at the pulse (its own victim only).
+    pub partial: Displacement,
+    /// Its inverse: the start of the pulse's victim's next motion.
+    pub back: Displacement,
+    /// Distance walked since the previous pulse (without the step in progress), m.
+    pub distance_m: f32,
+    /// Length of the step in progress credited at the pulse, m.
+    pub partial_m: f32,
 }
 
 /// One victim of the list.
@@ -263,10 +288,14 @@ impl VictimBank {
     }
 
     fn lost(&self, v: &Victim, t: f32) -> bool {
-        v.active && !v.marked && t - v.last_t > LOST_S
+        let silent = t - v.last_t;
+        v.active
+            && !v.marked
+            && (silent > LOST_S || (v.pulses < FEW_PULSES && silent > SHORT_LOST_S))
     }
 
-    /// Drops the unmarked victims not heard since `t − LOST_S`; returns how many.
+    /// Drops the unmarked victims not heard since `t − LOST_S` (`t − SHORT_LOST_S` for
+    /// those of few pulses); returns how many.
     pub fn drop_lost(&mut self, t: f32) -> usize {
         let mut n = 0;
         for i in 0..MAX_VICTIMS {
@@ -281,17 +310,18 @@ impl VictimBank {
         n
     }
 
-    /// One pulse of `src` in slot `i` (from [`VictimBank::slot_for`]): the motion
-    /// interval `d` (closed at this pulse, walking `distance_m`) is composed onto every
-    /// victim's pending motion, slot `i`'s filter steps with its own, and its pending
-    /// motion restarts. On error nothing changes (except that a free slot taken for a new victim stays free and empty). Returns the step's report and the
-    /// pending motion the victim was stepped with.
+    /// One pulse of `src` in slot `i` (from [`VictimBank::slot_for`]): the motion cut
+    /// at this pulse (`m.cut`, see [`crate::motion::Motion::take_split`]) is composed onto
+    /// every victim's pending motion, slot `i`'s filter steps with its own followed by
+    /// the step in progress (`m.partial`), and its pending motion restarts from
+    /// `m.back`. On error nothing changes (except that a free slot taken for a new victim
+    /// stays free and empty). Returns the step's report and the pending motion the victim
+    /// was stepped with.
     pub fn step(
         &mut self,
         i: usize,
         src: Option<u8>,
-        d: &Displacement,
-        distance_m: f32,
+        m: &MotionCut,
         attitude: &Attitude,
         pulse: &Pulse,
     ) -> Result<(StepReport, Pending), EstimateError> {
@@ -300,13 +330,27 @@ impl VictimBank {
             if v.active {
                 *p = v
                     .pending
-                    .then(d, distance_m)
+                    .then(&m.cut, m.distance_m)
                     .ok_or(EstimateError::OutOfRange)?;
             }
         }
-        let own = pend.get(i).copied().ok_or(EstimateError::InvalidConfig)?;
+        let slot = self.slots.get(i).ok_or(EstimateError::InvalidConfig)?;
+        let fresh_victim = !(slot.active && slot.src == src);
+        // A new victim's motion before its first pulse does not matter (a fresh mixture).
+        let before = if fresh_victim {
+            Pending::zero()
+        } else {
+            pend.get(i).copied().ok_or(EstimateError::InvalidConfig)?
+        };
+        let own = before
+            .then(&m.partial, m.partial_m)
+            .ok_or(EstimateError::OutOfRange)?;
+        let back = Pending {
+            d: m.back,
+            distance_m: -m.partial_m,
+        };
         let slot = self.slots.get_mut(i).ok_or(EstimateError::InvalidConfig)?;
-        if !(slot.active && slot.src == src) {
+        if fresh_victim {
             // A new victim (or a lost one's slot taken over): a fresh mixture, reset in
             // place (a copy of the ≈ 21 KB filter would not fit the board's stack). The
             // slot was free (`slot_for`), so a refused first pulse leaves it free.
@@ -317,16 +361,18 @@ impl VictimBank {
             slot.marked = false;
             slot.pulses = 0;
             slot.active = true;
-            return Ok(self.commit(i, pend, attitude, pulse.t, report, own));
+            return Ok(self.commit(i, pend, back, attitude, pulse.t, report, own));
         }
         let report = slot.filter.step(&own.d, attitude, pulse)?;
-        Ok(self.commit(i, pend, attitude, pulse.t, report, own))
+        Ok(self.commit(i, pend, back, attitude, pulse.t, report, own))
     }
 
+    #[allow(clippy::too_many_arguments)] // private: the parts of one step, kept apart
     fn commit(
         &mut self,
         i: usize,
         pend: [Pending; MAX_VICTIMS],
+        back: Pending,
         attitude: &Attitude,
         t: f32,
         report: StepReport,
@@ -334,7 +380,7 @@ impl VictimBank {
     ) -> (StepReport, Pending) {
         for (j, (v, p)) in self.slots.iter_mut().zip(pend).enumerate() {
             if j == i {
-                v.pending = Pending::zero();
+                v.pending = back;
                 v.last_t = t;
                 v.rpy_last = attitude.rpy;
                 v.pulses = v.pulses.saturating_add(1);

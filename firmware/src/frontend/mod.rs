@@ -64,7 +64,9 @@ pub use calibration::Calibration;
 pub use complex::C32;
 pub use config::{FrontendConfig, FrontendError};
 pub use pulse::{Pulse, PulseMeasurement};
-pub use tracker::{MAX_TRACKS, PERIOD_MAX_S, PERIOD_MIN_S, Track, TransmitterTracker};
+pub use tracker::{
+    DORMANT_S, ESTABLISHED_HITS, MAX_TRACKS, PERIOD_MAX_S, PERIOD_MIN_S, Track, TransmitterTracker,
+};
 
 use analysis::{BlockView, analyse};
 use core::f32::consts::PI;

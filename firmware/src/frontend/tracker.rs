@@ -12,12 +12,29 @@
 //! predicted pulse falls in such an overlap is kept alive (it is not expired) and its
 //! timing is extrapolated by its period across up to [`MAX_MISSED`] missed pulses, so
 //! both transmitters keep their ids — and their victims their mixtures — after it.
+//!
+//! A transmitter's period is fixed to ppm for a search, so identity outlives silence: an
+//! *established* track (a period confirmed by [`ESTABLISHED_HITS`] pulses) that is not
+//! heard (out of range, or its pulses lost) is kept dormant for [`DORMANT_S`] and still
+//! matched by its period and phase, and a new track whose period and carrier match a
+//! dormant one that fell silent before it started is re-attached to it (it takes the old
+//! id, so the victim keeps its mixture and its mark). The tracker holds more tracks than
+//! the victim list ([`MAX_TRACKS`] > `victims::MAX_VICTIMS`) so dormant tracks and a
+//! new transmitter's first pulses do not push each other out; when full, an unconfirmed
+//! track is replaced before an established one.
 
 use heapless::Vec as HVec;
 
-/// Tracks kept at once (transmitters separable at the same time). Four covers the
-/// multiple-burial scenarios of the standard's test procedures.
-pub const MAX_TRACKS: usize = 4;
+/// Tracks kept at once, dormant ones included: twice the victim list, so that a silent
+/// transmitter keeps its identity while new ones are being confirmed (28 B each).
+pub const MAX_TRACKS: usize = 8;
+/// Pulses that make a track established (its period confirmed by a timed match).
+pub const ESTABLISHED_HITS: u32 = 3;
+/// An established track neither heard nor occluded is kept (dormant) this long (s).
+pub const DORMANT_S: f32 = 120.0;
+/// Largest period difference (s) for re-attaching a new track to a dormant one: both
+/// period estimates are smoothed means of intervals with ms jitter.
+const REATTACH_PERIOD_S: f32 = 0.004;
 
 /// Shortest period of the standard (s).
 pub const PERIOD_MIN_S: f32 = 0.7;
@@ -56,6 +73,24 @@ pub struct Track {
     pub hits: u32,
     /// Last time (s) it was heard or its predicted pulse was hidden by an overlap.
     pub alive_t_s: f32,
+    /// Time of its first pulse (s).
+    pub first_t_s: f32,
+}
+
+impl Track {
+    /// Whether its period is confirmed ([`ESTABLISHED_HITS`] pulses).
+    pub fn established(&self) -> bool {
+        self.hits >= ESTABLISHED_HITS && self.period_s.is_some()
+    }
+
+    /// How long (s) it is kept without being heard or occluded.
+    fn keep_s(&self) -> f32 {
+        if self.established() {
+            DORMANT_S
+        } else {
+            EXPIRE_S
+        }
+    }
 }
 
 /// Assigns pulses to transmitters; fixed capacity [`MAX_TRACKS`].
@@ -82,7 +117,7 @@ impl TransmitterTracker {
         if !t_s.is_finite() || !offset_hz.is_finite() {
             return None;
         }
-        self.tracks.retain(|tr| t_s - tr.alive_t_s <= EXPIRE_S);
+        self.tracks.retain(|tr| t_s - tr.alive_t_s <= tr.keep_s());
         let mut best: Option<(usize, f32, u32)> = None;
         for (i, tr) in self.tracks.iter().enumerate() {
             if let Some((cost, k)) = match_cost(tr, t_s, offset_hz)
@@ -103,7 +138,11 @@ impl TransmitterTracker {
             tr.last_t_s = t_s;
             tr.alive_t_s = t_s;
             tr.hits = tr.hits.saturating_add(1);
-            return Some(tr.id);
+            let (id, just_established) = (tr.id, tr.hits == ESTABLISHED_HITS);
+            if just_established {
+                return Some(self.reattach(i).unwrap_or(id));
+            }
+            return Some(id);
         }
         let id = self.next_id;
         self.next_id = self.next_id.wrapping_add(1);
@@ -114,14 +153,19 @@ impl TransmitterTracker {
             carrier_offset_hz: offset_hz,
             hits: 1,
             alive_t_s: t_s,
+            first_t_s: t_s,
         };
         if self.tracks.is_full() {
-            // Replace the track silent for longest.
+            // Replace the track silent for longest, unconfirmed ones first.
             let stalest = self
                 .tracks
                 .iter()
                 .enumerate()
-                .min_by(|a, b| a.1.alive_t_s.total_cmp(&b.1.alive_t_s))
+                .min_by(|a, b| {
+                    (a.1.established(), a.1.alive_t_s)
+                        .partial_cmp(&(b.1.established(), b.1.alive_t_s))
+                        .unwrap_or(core::cmp::Ordering::Equal)
+                })
                 .map(|(i, _)| i);
             if let Some(i) = stalest {
                 self.tracks.swap_remove(i);
@@ -129,6 +173,36 @@ impl TransmitterTracker {
         }
         self.tracks.push(track).ok()?;
         Some(id)
+    }
+
+    /// Track `i` was just confirmed: if a dormant established track that fell silent
+    /// before it started has the same period (within [`REATTACH_PERIOD_S`]), carrier
+    /// (within the carrier gate) and, when few enough periods lie between them, phase,
+    /// it is the same transmitter heard again: track `i` takes its id and replaces it.
+    /// Returns the id taken over.
+    fn reattach(&mut self, i: usize) -> Option<u8> {
+        let new = *self.tracks.get(i)?;
+        let p_new = new.period_s?;
+        let mut best: Option<(usize, f32)> = None;
+        for (j, old) in self.tracks.iter().enumerate() {
+            if j == i || !old.established() || old.last_t_s >= new.first_t_s {
+                continue;
+            }
+            let Some(cost) = reattach_cost(old, &new, p_new) else {
+                continue;
+            };
+            if best.is_none_or(|(_, c)| cost < c) {
+                best = Some((j, cost));
+            }
+        }
+        let (j, _) = best?;
+        let old = *self.tracks.get(j)?;
+        let tr = self.tracks.get_mut(i)?;
+        tr.id = old.id;
+        tr.hits = tr.hits.saturating_add(old.hits);
+        tr.first_t_s = old.first_t_s;
+        self.tracks.swap_remove(j);
+        Some(old.id)
     }
 
     /// A pulse centred at `t_s` (s) was withheld as an overlap of several transmitters:
@@ -153,7 +227,7 @@ impl TransmitterTracker {
 /// overlap's centre lies up to a pulse length, ≤ 0.2 s, from either pulse's centre).
 fn predicted_near(tr: &Track, t_s: f32) -> bool {
     let dt = t_s - tr.last_t_s;
-    if dt <= 0.0 || t_s - tr.alive_t_s > EXPIRE_S {
+    if dt <= 0.0 || t_s - tr.alive_t_s > tr.keep_s() {
         return false;
     }
     match tr.period_s {
@@ -164,6 +238,29 @@ fn predicted_near(tr: &Track, t_s: f32) -> bool {
         // Unknown period: any plausible next pulse.
         _ => dt >= PERIOD_MIN_S - 0.2,
     }
+}
+
+/// Cost of taking `new` (period `p_new`) as the dormant track `old` heard again, or
+/// `None` when period, carrier or (over at most [`MAX_MISSED`] periods) phase differ.
+fn reattach_cost(old: &Track, new: &Track, p_new: f32) -> Option<f32> {
+    let p_old = old.period_s?;
+    let dp = p_new - p_old;
+    let df = new.carrier_offset_hz - old.carrier_offset_hz;
+    if dp.abs() > REATTACH_PERIOD_S || df.abs() > FREQ_GATE_HZ {
+        return None;
+    }
+    let mut cost = (dp / REATTACH_PERIOD_S) * (dp / REATTACH_PERIOD_S)
+        + (df / FREQ_GATE_HZ) * (df / FREQ_GATE_HZ);
+    let k = libm::roundf((new.first_t_s - old.last_t_s) / p_old);
+    if (1.0..=(MAX_MISSED + 1) as f32).contains(&k) {
+        let err = new.first_t_s - old.last_t_s - k * p_old;
+        let gate = TIME_GATE_S + DRIFT_GATE_S * (k - 1.0);
+        if err.abs() > gate {
+            return None;
+        }
+        cost += (err / gate) * (err / gate);
+    }
+    Some(cost)
 }
 
 /// Cost of attributing a pulse to `tr` and the number of periods since its last pulse,
@@ -282,7 +379,7 @@ mod tests {
         assert_eq!(assigned, 2 * (130 - held));
         assert_ne!(ids[0], ids[1]);
         assert_eq!(tr.tracks().len(), 2);
-        // Without the occlusion reports both tracks expire during the overlap.
+        // Without the occlusion reports the established tracks are bridged as dormant.
         let mut bare = TransmitterTracker::new();
         for k in 0..130 {
             let (ta, tb) = (0.5 + pa * k as f32, 0.2 + pb * k as f32);
@@ -291,7 +388,50 @@ mod tests {
                 bare.assign(tb, 20.0);
             }
         }
-        assert!(bare.tracks().iter().all(|t| t.id >= 2));
+        let mut ids: Vec<u8> = bare.tracks().iter().map(|t| t.id).collect();
+        ids.sort_unstable();
+        assert_eq!(ids, vec![0, 1]);
+    }
+
+    #[test]
+    fn a_transmitter_silent_for_long_is_reattached_to_its_id() {
+        // A (1.137 s) and B (0.861 s); A falls silent (out of range) for 90 s, more than
+        // MAX_MISSED periods, and comes back with another phase: it gets its id back.
+        let mut tr = TransmitterTracker::new();
+        let (pa, pb) = (1.137f32, 0.861f32);
+        let mut pulses: Vec<(f32, f32, usize)> = Vec::new();
+        for k in 0..200 {
+            let ta = 0.3 + pa * k as f32;
+            if !(20.0..110.0).contains(&ta) {
+                pulses.push((ta + if ta > 110.0 { 0.4 } else { 0.0 }, 31.0, 0));
+            }
+            pulses.push((0.05 + pb * k as f32, -22.0, 1));
+        }
+        pulses.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut first = [None, None];
+        let mut after: Vec<u8> = Vec::new();
+        for (t, f, who) in pulses {
+            let id = tr.assign(t, f).unwrap();
+            first[who].get_or_insert(id);
+            if who == 0 && t > 110.0 {
+                after.push(id);
+            }
+        }
+        assert_ne!(first[0], first[1]);
+        // The first pulses back start a new track; from its confirmation on, A's id.
+        assert!(after.len() > 20);
+        assert!(
+            after[3..].iter().all(|id| Some(*id) == first[0]),
+            "{after:?}"
+        );
+        // B was never disturbed, and a different period is not re-attached.
+        assert_eq!(
+            tr.tracks()
+                .iter()
+                .filter(|t| Some(t.id) == first[1])
+                .count(),
+            1
+        );
     }
 
     #[test]
