@@ -279,6 +279,7 @@ impl Receiver {
 
     /// [`Receiver::new`] for a configuration already checked: infallible, so that
     /// [`Receiver::emplace`] builds the receiver straight into its slot.
+    #[inline(always)]
     fn new_checked(cfg: AppConfig) -> Self {
         Self {
             bank: VictimBank::new_checked(cfg.sog),

@@ -224,6 +224,7 @@ impl VictimBank {
     /// [`VictimBank::new`] for a configuration the filter accepted: infallible and built
     /// slot by slot, so the ≈ 85 KB bank can be built in its final place (see
     /// [`crate::app::Receiver::emplace`]) without a whole copy on the stack.
+    #[inline(always)]
     pub(crate) fn new_checked(cfg: SogConfig) -> Self {
         // An array literal of element constructors (not `from_fn` or clones, which build
         // each ≈ 21 KB element on the stack and copy it): the compiler writes each field
