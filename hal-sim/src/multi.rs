@@ -668,8 +668,10 @@ fn single_victim_check(tries: u64) -> anyhow::Result<String> {
          `rescue-report`'s calibrated case (same seeds 1..={tries}) run by this build, \
          where one victim gets one slot of the bank: {probed}/{tries} reached \"probe \
          here\"; probe-point error max / mean / median {} m; steps / ideal from the first \
-         received pulse {}. Compare with `rescue.md` (240 components: 100/100, error \
-         0.707 / 0.131 / 0.088 m, steps / ideal 5.167 / 1.743 / 1.635).\n",
+         received pulse {}. For comparison, the single 240-component filter of the application \
+         before multiple victims (the `rescue.md` of that build, with the guidance of that \
+         time): 100/100, error 0.707 / 0.131 / 0.088 m, steps / ideal 5.167 / 1.743 / \
+         1.635.\n",
         firmware::victims::VICTIM_CAPACITY,
         fmt(err, 3).replace(" | ", " / "),
         fmt(ratio, 3).replace(" | ", " / "),
