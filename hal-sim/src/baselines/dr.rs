@@ -2,7 +2,7 @@
 //! fixed at the first pulse, from the per-pulse [`Displacement`] and [`Attitude`] the
 //! SOGs filter gets, and the checks every baseline applies to its inputs.
 use crate::physics::{M3, V3, rotation_from_rpy};
-use firmware::estimate::{Attitude, Displacement, EstimateError, Pulse};
+use firmware::estimate::{Attitude, Displacement, EstimateError, Pulse, StepOutcome, StepReport};
 
 /// Largest displacement between two pulses accepted, m (a pulse period at a run is < 10 m).
 const MAX_STEP_M: f64 = 1e3;
@@ -29,6 +29,24 @@ pub struct WorldPulse {
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct DeadReckoning {
     last: Option<WorldPulse>,
+}
+
+/// The report of a batch baseline's accepted pulse: one hypothesis, `Initialized` on the
+/// first pulse and `Updated` after (these fits have no gating, pruning or merging).
+pub(crate) fn single_report(first: bool) -> StepReport {
+    StepReport {
+        outcome: if first {
+            StepOutcome::Initialized
+        } else {
+            StepOutcome::Updated
+        },
+        n_components: 1,
+        best_d2: 0.0,
+        pruned: 0,
+        merged: 0,
+        split: 0,
+        dropped: 0,
+    }
 }
 
 fn v3(v: &firmware::Vec3) -> V3 {

@@ -2,6 +2,7 @@
 //! corrected tracks (rescuer colours), victims with 2σ ellipses and labels, and when the
 //! truth is known the true victims (black crosses) and true tracks (grey).
 use super::map::TeamMap;
+use crate::demo::{Canvas, write_png};
 use anyhow::Result;
 use embedded_graphics::mono_font::{MonoTextStyle, ascii::FONT_6X10};
 use embedded_graphics::pixelcolor::Rgb888;
@@ -190,50 +191,4 @@ pub fn plot(map: &TeamMap, truth: Option<&TruthOverlay>, path: &Path) -> Result<
         .draw(&mut canvas);
     }
     write_png(path, SIZE, SIZE, &buf)
-}
-
-fn write_png(path: &Path, w: u32, h: u32, rgb: &[u8]) -> Result<()> {
-    use anyhow::Context;
-    let file =
-        std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
-    let mut enc = png::Encoder::new(std::io::BufWriter::new(file), w, h);
-    enc.set_color(png::ColorType::Rgb);
-    enc.set_depth(png::BitDepth::Eight);
-    let mut writer = enc.write_header()?;
-    writer.write_image_data(rgb)?;
-    writer.finish()?;
-    Ok(())
-}
-
-/// An RGB byte buffer as an `embedded-graphics` target (for the labels).
-struct Canvas<'a> {
-    buf: &'a mut [u8],
-    w: u32,
-    h: u32,
-}
-
-impl OriginDimensions for Canvas<'_> {
-    fn size(&self) -> Size {
-        Size::new(self.w, self.h)
-    }
-}
-
-impl DrawTarget for Canvas<'_> {
-    type Color = Rgb888;
-    type Error = core::convert::Infallible;
-
-    fn draw_iter<I>(&mut self, pixels: I) -> Result<(), Self::Error>
-    where
-        I: IntoIterator<Item = embedded_graphics::Pixel<Self::Color>>,
-    {
-        for embedded_graphics::Pixel(p, c) in pixels {
-            if p.x >= 0 && p.y >= 0 && (p.x as u32) < self.w && (p.y as u32) < self.h {
-                let i = ((p.y as u32 * self.w + p.x as u32) * 3) as usize;
-                if let Some(px) = self.buf.get_mut(i..i + 3) {
-                    px.copy_from_slice(&[c.r(), c.g(), c.b()]);
-                }
-            }
-        }
-        Ok(())
-    }
 }

@@ -19,6 +19,7 @@
 
 pub mod ekf;
 pub mod grid;
+mod particles;
 pub mod pf;
 pub mod rbpf;
 mod rng;
@@ -35,7 +36,10 @@ use super::gaussian::{Component, StepInput, cholesky3, lower_inverse3};
 use super::init::initialize;
 use super::model::{FIELD_SCALE, I_P, MotionMat, MotionVec};
 use super::sog::check_physical_range;
-use super::{Attitude, Displacement, EstimateError, Mode, Pulse, SogConfig, check_covariance};
+use super::{
+    Attitude, Displacement, EstimateError, Mode, Pulse, SogConfig, StepOutcome, StepReport,
+    check_covariance,
+};
 use crate::frame::{Rpy, rotation_from_rpy, rpy_from_rotation, wrap_pi};
 use crate::{Mat3, Vec3};
 use nalgebra::SMatrix;
@@ -121,6 +125,67 @@ pub(crate) fn check_inputs(
     check_covariance(&motion.absolute_cov)?;
     check_covariance(&attitude.cov)?;
     check_physical_range(motion, attitude)
+}
+
+/// Checks one step's inputs against the last pulse time (a refused input changes
+/// nothing), then records the pulse's time and returns the pulse in µA/m.
+pub(crate) fn accept_pulse(
+    config: &SogConfig,
+    last_t: &mut Option<f32>,
+    motion: &Displacement,
+    attitude: &Attitude,
+    pulse: &Pulse,
+) -> Result<Vec3, EstimateError> {
+    check_inputs(config, *last_t, motion, attitude, pulse)?;
+    *last_t = Some(pulse.t);
+    Ok(pulse.h * FIELD_SCALE)
+}
+
+/// The [`Estimator::step`](super::Estimator::step) every baseline shares: check and
+/// accept the pulse ([`accept_pulse`], on the fields `config` and `last_t`), then build
+/// the filter from it (`try_initialize`) until initialized, and `advance` after.
+macro_rules! staged_step {
+    () => {
+        fn step(
+            &mut self,
+            motion: &$crate::estimate::Displacement,
+            attitude: &$crate::estimate::Attitude,
+            pulse: &$crate::estimate::Pulse,
+        ) -> Result<$crate::estimate::StepReport, $crate::estimate::EstimateError> {
+            let z = $crate::estimate::baselines::accept_pulse(
+                &self.config,
+                &mut self.last_t,
+                motion,
+                attitude,
+                pulse,
+            )?;
+            if !$crate::estimate::Estimator::is_initialized(self) {
+                let outcome = $crate::estimate::StepOutcome::Initialized;
+                return Ok(self.try_initialize(attitude, &z, outcome));
+            }
+            Ok(self.advance(motion, attitude, &z))
+        }
+    };
+}
+pub(crate) use staged_step;
+
+/// A step report with `n` hypotheses, the best squared distance and the number lost
+/// (the baselines neither prune, merge nor split).
+pub(crate) fn step_report(
+    outcome: StepOutcome,
+    n: usize,
+    best_d2: f32,
+    dropped: u16,
+) -> StepReport {
+    StepReport {
+        outcome,
+        n_components: n,
+        best_d2,
+        pruned: 0,
+        merged: 0,
+        split: 0,
+        dropped,
+    }
 }
 
 /// Measurement noise variance per axis (ICRA eq. 10) for pulse `z` (µA/m), in (µA/m)².
