@@ -122,27 +122,6 @@ impl<const N: usize> SogFilter<N> {
         bkg * bkg + sen * sen
     }
 
-    /// Checks a pulse: finite, non-zero, not saturated, time not going back.
-    fn check_pulse(&self, pulse: &Pulse) -> Result<(), EstimateError> {
-        if !(pulse.h.iter().all(|v| v.is_finite()) && pulse.t.is_finite()) {
-            return Err(EstimateError::NonFinite);
-        }
-        if pulse.h.iter().all(|v| *v == 0.0) {
-            return Err(EstimateError::ZeroField);
-        }
-        if pulse
-            .h
-            .iter()
-            .any(|v| libm::fabsf(*v) >= self.config.h_saturation)
-        {
-            return Err(EstimateError::Saturated);
-        }
-        if self.last_t.is_some_and(|t| pulse.t < t) {
-            return Err(EstimateError::TimeWentBackwards);
-        }
-        Ok(())
-    }
-
     fn exact_motion(&self) -> bool {
         self.config.mode == Mode::KnownTrajectory
     }
@@ -300,18 +279,7 @@ impl<const N: usize> SogFilter<N> {
         mut mark: impl FnMut(Phase),
     ) -> Result<StepReport, EstimateError> {
         // Validate every input before touching the state.
-        self.check_pulse(pulse)?;
-        if !(motion.translation.iter().all(|v| v.is_finite())
-            && motion.absolute.iter().all(|v| v.is_finite())
-            && motion.rotation.iter().all(|v| v.is_finite())
-            && attitude.rpy.iter().all(|v| v.is_finite()))
-        {
-            return Err(EstimateError::NonFinite);
-        }
-        check_covariance(&motion.cov)?;
-        check_covariance(&motion.absolute_cov)?;
-        check_covariance(&attitude.cov)?;
-        check_physical_range(motion, attitude)?;
+        check_inputs(&self.config, self.last_t, motion, attitude, pulse)?;
         let scale_rev = self.scale_reversion(pulse.t);
         self.last_t = Some(pulse.t);
         let z = pulse.h * FIELD_SCALE;
@@ -495,6 +463,45 @@ impl<const N: usize> Estimator for SogFilter<N> {
     fn is_initialized(&self) -> bool {
         self.initialized
     }
+}
+
+/// The input checks of one step (finite, unsaturated, non-zero pulse, time not going
+/// back after `last_t`, valid covariances, physical ranges), shared with the baselines:
+/// they run before the state is touched, so a refused input changes nothing.
+pub(crate) fn check_inputs(
+    config: &SogConfig,
+    last_t: Option<f32>,
+    motion: &Displacement,
+    attitude: &Attitude,
+    pulse: &Pulse,
+) -> Result<(), EstimateError> {
+    if !(pulse.h.iter().all(|v| v.is_finite()) && pulse.t.is_finite()) {
+        return Err(EstimateError::NonFinite);
+    }
+    if pulse.h.iter().all(|v| *v == 0.0) {
+        return Err(EstimateError::ZeroField);
+    }
+    if pulse
+        .h
+        .iter()
+        .any(|v| libm::fabsf(*v) >= config.h_saturation)
+    {
+        return Err(EstimateError::Saturated);
+    }
+    if last_t.is_some_and(|t| pulse.t < t) {
+        return Err(EstimateError::TimeWentBackwards);
+    }
+    if !(motion.translation.iter().all(|v| v.is_finite())
+        && motion.absolute.iter().all(|v| v.is_finite())
+        && motion.rotation.iter().all(|v| v.is_finite())
+        && attitude.rpy.iter().all(|v| v.is_finite()))
+    {
+        return Err(EstimateError::NonFinite);
+    }
+    check_covariance(&motion.cov)?;
+    check_covariance(&motion.absolute_cov)?;
+    check_covariance(&attitude.cov)?;
+    check_physical_range(motion, attitude)
 }
 
 /// Largest translation between two pulses the filter accepts (m): a walking rescuer

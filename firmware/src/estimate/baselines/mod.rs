@@ -35,10 +35,9 @@ pub use rng::Prng;
 use super::gaussian::{Component, StepInput, cholesky3, lower_inverse3};
 use super::init::initialize;
 use super::model::{FIELD_SCALE, I_P, MotionMat, MotionVec};
-use super::sog::check_physical_range;
+use super::sog::check_inputs;
 use super::{
     Attitude, Displacement, EstimateError, Mode, Pulse, SogConfig, StepOutcome, StepReport,
-    check_covariance,
 };
 use crate::frame::{Rpy, rotation_from_rpy, rpy_from_rotation, wrap_pi};
 use crate::{Mat3, Vec3};
@@ -87,44 +86,6 @@ impl ParticleConfig {
             Err(EstimateError::InvalidConfig)
         }
     }
-}
-
-/// The SOGs filter's input checks (finite, unsaturated, non-zero pulse, time not going
-/// back, valid covariances, physical ranges): a refused input changes nothing.
-pub(crate) fn check_inputs(
-    config: &SogConfig,
-    last_t: Option<f32>,
-    motion: &Displacement,
-    attitude: &Attitude,
-    pulse: &Pulse,
-) -> Result<(), EstimateError> {
-    if !(pulse.h.iter().all(|v| v.is_finite()) && pulse.t.is_finite()) {
-        return Err(EstimateError::NonFinite);
-    }
-    if pulse.h.iter().all(|v| *v == 0.0) {
-        return Err(EstimateError::ZeroField);
-    }
-    if pulse
-        .h
-        .iter()
-        .any(|v| libm::fabsf(*v) >= config.h_saturation)
-    {
-        return Err(EstimateError::Saturated);
-    }
-    if last_t.is_some_and(|t| pulse.t < t) {
-        return Err(EstimateError::TimeWentBackwards);
-    }
-    if !(motion.translation.iter().all(|v| v.is_finite())
-        && motion.absolute.iter().all(|v| v.is_finite())
-        && motion.rotation.iter().all(|v| v.is_finite())
-        && attitude.rpy.iter().all(|v| v.is_finite()))
-    {
-        return Err(EstimateError::NonFinite);
-    }
-    check_covariance(&motion.cov)?;
-    check_covariance(&motion.absolute_cov)?;
-    check_covariance(&attitude.cov)?;
-    check_physical_range(motion, attitude)
 }
 
 /// Checks one step's inputs against the last pulse time (a refused input changes
