@@ -19,50 +19,75 @@ use crate::frame::Rpy;
 use crate::{Mat3, Vec3};
 use heapless::Vec;
 
-/// A particle type: a pose `(Ψ, p_T, s)`, a moment and a log-weight, plus the model
-/// specific parts of its filter.
-pub(crate) trait ParticleModel: Weighted + Copy {
+/// One particle: a point hypothesis of the pose `(Ψ, p_T, s)` with the moment's mean,
+/// a log-weight and the model's extra state `E` (11 `f32` plus `E`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Particle<E> {
+    /// Orientation of `R_k` in `G_k` (rad).
+    pub(crate) psi: Rpy,
+    /// Transmitter position in `G_k` (m).
+    pub(crate) p: Vec3,
+    /// Transmitter moment (mean) in `G_k` (mA·m²).
+    pub(crate) m: Vec3,
+    /// Scale factor of the dead-reckoned translation.
+    pub(crate) s: f32,
+    /// Log-weight.
+    pub(crate) log_w: f32,
+    /// What the model keeps beyond the mean moment.
+    pub(crate) extra: E,
+}
+
+impl<E> Weighted for Particle<E> {
+    fn log_w(&self) -> f32 {
+        self.log_w
+    }
+    fn set_log_w(&mut self, v: f32) {
+        self.log_w = v;
+    }
+}
+
+/// What differs between the particle filters: how a particle's moment is drawn,
+/// weighed by a pulse and roughened.
+pub(crate) trait ParticleModel {
     /// Whether the particles are resampled right after initialization (when their
     /// initial weights already differ).
     const RESAMPLE_AT_INIT: bool;
+    /// The particle's state beyond the mean moment.
+    type Extra: Copy + core::fmt::Debug + PartialEq;
     /// What the initialization computes once per pulse for every draw.
     type Prior;
     /// The per-pulse constants of an initialization from pulse `z` (µA/m in `R_1`)
     /// with noise variance `r_var`, for `n` particles.
     fn prior(config: &SogConfig, z: &Vec3, r_var: f32, n: usize) -> Self::Prior;
     /// A particle at pose `(psi, p, s)` explaining pulse `z`, or `None` to redraw.
-    fn draw(prior: &Self::Prior, pose: (Rpy, Vec3, f32), z: &Vec3, rng: &mut Prng) -> Option<Self>;
-    /// Weighs the particle, already moved to orientation `rot = R(Ψ)`, by pulse `z`:
+    fn draw(
+        prior: &Self::Prior,
+        pose: (Rpy, Vec3, f32),
+        z: &Vec3,
+        rng: &mut Prng,
+    ) -> Option<Particle<Self::Extra>>;
+    /// Weighs particle `q`, already moved to orientation `rot = R(Ψ)`, by pulse `z`:
     /// the squared distance (best sign, in noise units) and the log-likelihood, or
     /// `None` when the model cannot be evaluated there.
-    fn weigh(&mut self, rot: &Mat3, z: &Vec3, r_var: f32) -> Option<(f32, f32)>;
+    fn weigh(q: &mut Particle<Self::Extra>, rot: &Mat3, z: &Vec3, r_var: f32)
+    -> Option<(f32, f32)>;
     /// Jitters a resampled copy by the fraction `k` of its magnitudes (1σ).
-    fn roughen(&mut self, rng: &mut Prng, k: f32);
-    /// Orientation of `R_k` in `G_k` (rad).
-    fn psi(&self) -> Rpy;
-    /// Transmitter position in `G_k` (m).
-    fn p(&self) -> Vec3;
-    /// Transmitter moment (mean) in `G_k` (mA·m²).
-    fn m(&self) -> Vec3;
-    /// Scale factor of the dead-reckoned translation.
-    fn s(&self) -> f32;
-    /// Moves the particle to the composed pose.
-    fn set_pose(&mut self, psi: Rpy, p: Vec3);
+    fn roughen(q: &mut Particle<Self::Extra>, rng: &mut Prng, k: f32);
 }
 
 /// A particle filter with room for `N` particles of type `P` (no heap).
 #[derive(Debug, Clone, PartialEq)]
-pub(crate) struct ParticleSet<P, const N: usize> {
+pub(crate) struct ParticleSet<M: ParticleModel, const N: usize> {
     config: SogConfig,
     params: ParticleConfig,
-    particles: Vec<P, N>,
+    particles: Vec<Particle<M::Extra>, N>,
     rng: Prng,
     inconsistent_pulses: u8,
     last_t: Option<f32>,
     resamples: u32,
 }
 
-impl<P: ParticleModel, const N: usize> ParticleSet<P, N> {
+impl<M: ParticleModel, const N: usize> ParticleSet<M, N> {
     /// An empty filter, or `InvalidConfig` (bad parameters, fewer than 2 particles).
     pub(crate) fn new(config: SogConfig, params: ParticleConfig) -> Result<Self, EstimateError> {
         config.validate()?;
@@ -136,16 +161,17 @@ impl<P: ParticleModel, const N: usize> ParticleSet<P, N> {
         let mut dropped = 0u16;
         for q in self.particles.iter_mut() {
             let d = noise.sample(&mut self.rng);
-            let (psi, p, rot) = compose_pose(&q.psi(), &q.p(), q.s(), &d);
-            q.set_pose(psi, p);
-            match q.weigh(&rot, z, r_var) {
+            let (psi, p, rot) = compose_pose(&q.psi, &q.p, q.s, &d);
+            q.psi = psi;
+            q.p = p;
+            match M::weigh(q, &rot, z, r_var) {
                 Some((d2, ll)) => {
                     best_d2 = best_d2.min(d2);
                     let la = att.map_or(0.0, |l| attitude_log_lik(&psi, &attitude.rpy, &l));
-                    q.set_log_w(q.log_w() + (ll + la));
+                    q.log_w += ll + la;
                 }
                 None => {
-                    q.set_log_w(LOG_ZERO);
+                    q.log_w = LOG_ZERO;
                     dropped += 1;
                 }
             }
@@ -173,7 +199,7 @@ impl<P: ParticleModel, const N: usize> ParticleSet<P, N> {
         }
         let exact = self.exact();
         let att_l = psd_factor(&((attitude.cov + attitude.cov.transpose()) * 0.5));
-        let prior = P::prior(&self.config, z, noise_var(&self.config, z), N);
+        let prior = M::prior(&self.config, z, noise_var(&self.config, z), N);
         let mut tries = 0;
         while !self.particles.is_full() && tries < 4 * N {
             tries += 1;
@@ -190,7 +216,7 @@ impl<P: ParticleModel, const N: usize> ParticleSet<P, N> {
             } else {
                 1.0 + self.config.scale_sigma * self.rng.gauss()
             };
-            if let Some(q) = P::draw(&prior, (psi, p, s), z, &mut self.rng) {
+            if let Some(q) = M::draw(&prior, (psi, p, s), z, &mut self.rng) {
                 let _ = self.particles.push(q);
             }
         }
@@ -207,7 +233,7 @@ impl<P: ParticleModel, const N: usize> ParticleSet<P, N> {
             self.particles.clear();
         }
         let n = self.particles.len();
-        if P::RESAMPLE_AT_INIT && n > 0 && self.n_eff() < self.params.resample_fraction * n as f32 {
+        if M::RESAMPLE_AT_INIT && n > 0 && self.n_eff() < self.params.resample_fraction * n as f32 {
             self.resample();
         }
     }
@@ -220,14 +246,14 @@ impl<P: ParticleModel, const N: usize> ParticleSet<P, N> {
         let k = self.params.roughen;
         if k > 0.0 {
             for q in self.particles.iter_mut() {
-                q.roughen(&mut self.rng, k);
+                M::roughen(q, &mut self.rng, k);
             }
         }
         self.resamples = self.resamples.saturating_add(1);
     }
 }
 
-impl<P: ParticleModel, const N: usize> Estimator for ParticleSet<P, N> {
+impl<M: ParticleModel, const N: usize> Estimator for ParticleSet<M, N> {
     super::staged_step!();
 
     /// The weighted mean and covariance of the positions, the moment with the sign of
@@ -236,22 +262,18 @@ impl<P: ParticleModel, const N: usize> Estimator for ParticleSet<P, N> {
         let best = self
             .particles
             .iter()
-            .max_by(|a, b| a.log_w().total_cmp(&b.log_w()))?;
-        let items = self
-            .particles
-            .iter()
-            .map(|q| (libm::expf(q.log_w()), q.p()));
+            .max_by(|a, b| a.log_w.total_cmp(&b.log_w))?;
+        let items = self.particles.iter().map(|q| (libm::expf(q.log_w), q.p));
         let (p, cov) = weighted_moments(items);
-        let best_m = best.m();
+        // Moment with the sign of the heaviest particle (the sign is not observable).
         let mut moment = Vec3::zeros();
         let (mut scale, mut scale2) = (0.0f32, 0.0f32);
         for q in self.particles.iter() {
-            let w = libm::expf(q.log_w());
-            let (m, s) = (q.m(), q.s());
-            let sign = if m.dot(&best_m) < 0.0 { -1.0 } else { 1.0 };
-            moment += m * (w * sign);
-            scale += w * s;
-            scale2 += w * s * s;
+            let w = libm::expf(q.log_w);
+            let sign = if q.m.dot(&best.m) < 0.0 { -1.0 } else { 1.0 };
+            moment += q.m * (w * sign);
+            scale += w * q.s;
+            scale2 += w * q.s * q.s;
         }
         Some(VictimEstimate {
             p,
@@ -259,9 +281,9 @@ impl<P: ParticleModel, const N: usize> Estimator for ParticleSet<P, N> {
             moment: moment / MOMENT_SCALE,
             scale,
             scale_sigma: libm::sqrtf((scale2 - scale * scale).max(0.0)),
-            rpy: best.psi(),
+            rpy: best.psi,
             n_components: self.particles.len(),
-            max_weight: libm::expf(best.log_w()),
+            max_weight: libm::expf(best.log_w),
         })
     }
 
@@ -278,14 +300,14 @@ impl<P: ParticleModel, const N: usize> Estimator for ParticleSet<P, N> {
     }
 }
 
-/// The public face of a particle filter wrapping a [`ParticleSet`] of `$particle`:
+/// The public face of a particle filter wrapping a [`ParticleSet`] of `$model`:
 /// its constructors, diagnostics and the [`Estimator`](super::super::Estimator) impl.
 macro_rules! particle_filter {
-    ($(#[$doc:meta])* $name:ident, $particle:ty) => {
+    ($(#[$doc:meta])* $name:ident, $model:ty) => {
         $(#[$doc])*
         #[derive(Debug, Clone, PartialEq)]
         pub struct $name<const N: usize>(
-            $crate::estimate::baselines::particles::ParticleSet<$particle, N>,
+            $crate::estimate::baselines::particles::ParticleSet<$model, N>,
         );
 
         impl<const N: usize> $name<N> {

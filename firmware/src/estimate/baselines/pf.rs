@@ -18,34 +18,19 @@
 use super::super::SogConfig;
 use super::super::model::K_H;
 use super::particles::{ParticleModel, particle_filter};
-use super::{Prng, Weighted, gauss3, sign_ambiguous_log_lik};
+use super::{Prng, gauss3, sign_ambiguous_log_lik};
 use crate::dipole::{field, moment_from_field};
 use crate::frame::{Rpy, rotation_from_rpy};
 use crate::{Mat3, Vec3};
 
-/// One particle: a point hypothesis of the robocentric state (44 bytes).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) struct Particle {
-    /// Orientation of `R_k` in `G_k` (rad).
-    psi: Rpy,
-    /// Transmitter position in `G_k` (m).
-    p: Vec3,
-    /// Transmitter moment in `G_k` (mA·m²).
-    m: Vec3,
-    /// Scale factor of the dead-reckoned translation.
-    s: f32,
-    /// Log-weight.
-    log_w: f32,
-}
+/// The vanilla filter's model: each particle is a point hypothesis of the whole state,
+/// moment included (44 bytes: no extra state).
+/// One particle of the vanilla filter: the state `[Ψ; p_T; m; s]` and its log-weight
+/// (44 bytes).
+pub(crate) type Particle = super::particles::Particle<()>;
 
-impl Weighted for Particle {
-    fn log_w(&self) -> f32 {
-        self.log_w
-    }
-    fn set_log_w(&mut self, v: f32) {
-        self.log_w = v;
-    }
-}
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Vanilla;
 
 /// Initialization constants: the pulse's relative noise and the uniform log-weight.
 #[derive(Debug, Clone, Copy)]
@@ -54,8 +39,9 @@ pub(crate) struct Prior {
     log_w: f32,
 }
 
-impl ParticleModel for Particle {
+impl ParticleModel for Vanilla {
     const RESAMPLE_AT_INIT: bool = false;
+    type Extra = ();
     type Prior = Prior;
 
     fn prior(_config: &SogConfig, z: &Vec3, r_var: f32, n: usize) -> Prior {
@@ -67,7 +53,7 @@ impl ParticleModel for Particle {
 
     /// The moment is the dipole inverse of the first pulse at the particle's position
     /// (so the particle explains it), perturbed by the pulse's relative noise.
-    fn draw(prior: &Prior, pose: (Rpy, Vec3, f32), z: &Vec3, rng: &mut Prng) -> Option<Self> {
+    fn draw(prior: &Prior, pose: (Rpy, Vec3, f32), z: &Vec3, rng: &mut Prng) -> Option<Particle> {
         let (psi, p, s) = pose;
         let z_g = rotation_from_rpy(&psi) * z;
         let m = moment_from_field(&(-p), &z_g).ok()? / K_H;
@@ -78,43 +64,27 @@ impl ParticleModel for Particle {
             m,
             s,
             log_w: prior.log_w,
+            extra: (),
         })
     }
 
-    fn weigh(&mut self, rot: &Mat3, z: &Vec3, r_var: f32) -> Option<(f32, f32)> {
-        pulse_log_lik(rot, &self.p, &self.m, z, r_var)
+    fn weigh(q: &mut Particle, rot: &Mat3, z: &Vec3, r_var: f32) -> Option<(f32, f32)> {
+        pulse_log_lik(rot, &q.p, &q.m, z, r_var)
     }
 
     /// Roughens both the position and the moment.
-    fn roughen(&mut self, rng: &mut Prng, k: f32) {
-        let jp = gauss3(rng) * (k * self.p.norm());
-        let jm = gauss3(rng) * (k * self.m.norm());
-        self.p += jp;
-        self.m += jm;
-    }
-
-    fn psi(&self) -> Rpy {
-        self.psi
-    }
-    fn p(&self) -> Vec3 {
-        self.p
-    }
-    fn m(&self) -> Vec3 {
-        self.m
-    }
-    fn s(&self) -> f32 {
-        self.s
-    }
-    fn set_pose(&mut self, psi: Rpy, p: Vec3) {
-        self.psi = psi;
-        self.p = p;
+    fn roughen(q: &mut Particle, rng: &mut Prng, k: f32) {
+        let jp = gauss3(rng) * (k * q.p.norm());
+        let jm = gauss3(rng) * (k * q.m.norm());
+        q.p += jp;
+        q.m += jm;
     }
 }
 
 particle_filter!(
     /// Vanilla particle filter with room for `N` particles (no heap).
     ParticleFilter,
-    Particle
+    Vanilla
 );
 
 /// Weight update of one particle moved to `p` with orientation `rot = R(Ψ)`: returns the pulse's squared

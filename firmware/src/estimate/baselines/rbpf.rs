@@ -24,36 +24,20 @@ use super::super::SogConfig;
 use super::super::gaussian::{cholesky3, lower_inverse3};
 use super::super::model::{K_H, MOMENT_SCALE};
 use super::particles::{ParticleModel, particle_filter};
-use super::{Prng, Weighted, gauss3, sign_ambiguous_log_lik};
+use super::{Prng, gauss3, sign_ambiguous_log_lik};
 use crate::dipole::field_matrix;
 use crate::frame::{Rpy, rotation_from_rpy};
 use crate::{Mat3, Vec3};
 
-/// One particle: a pose hypothesis and the Kalman filter of the moment (68 bytes).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) struct Particle {
-    /// Orientation of `R_k` in `G_k` (rad).
-    psi: Rpy,
-    /// Transmitter position in `G_k` (m).
-    p: Vec3,
-    /// Scale factor of the dead-reckoned translation.
-    s: f32,
-    /// Mean of the moment in `G_k` (mA·m²).
-    m: Vec3,
-    /// Upper triangle of the moment's covariance: xx, xy, xz, yy, yz, zz.
-    pm: [f32; 6],
-    /// Log-weight.
-    log_w: f32,
-}
+/// The Rao-Blackwellized model: each particle carries a Kalman filter of the moment,
+/// whose mean is the particle's `m` and whose covariance is the extra state, packed as
+/// the upper triangle xx, xy, xz, yy, yz, zz (68 bytes per particle).
+/// One particle of the RBPF: pose, the moment's Kalman filter and the log-weight
+/// (68 bytes).
+pub(crate) type Particle = super::particles::Particle<[f32; 6]>;
 
-impl Weighted for Particle {
-    fn log_w(&self) -> f32 {
-        self.log_w
-    }
-    fn set_log_w(&mut self, v: f32) {
-        self.log_w = v;
-    }
-}
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct RaoBlackwell;
 
 /// Packs a symmetric 3×3 matrix.
 fn pack3(p: &Mat3) -> [f32; 6] {
@@ -140,8 +124,9 @@ pub(crate) struct Prior {
     r_var: f32,
 }
 
-impl ParticleModel for Particle {
+impl ParticleModel for RaoBlackwell {
     const RESAMPLE_AT_INIT: bool = true;
+    type Extra = [f32; 6];
     type Prior = Prior;
 
     /// `σ_m = m_max/√3`, so `E|m|² = m_max²`.
@@ -155,55 +140,38 @@ impl ParticleModel for Particle {
 
     /// The first pulse is the first Kalman update of the moment's prior `N(0, σ_m² I)`;
     /// its marginal likelihood is the particle's initial weight.
-    fn draw(prior: &Prior, pose: (Rpy, Vec3, f32), z: &Vec3, _rng: &mut Prng) -> Option<Self> {
+    fn draw(prior: &Prior, pose: (Rpy, Vec3, f32), z: &Vec3, _rng: &mut Prng) -> Option<Particle> {
         let (psi, p, s) = pose;
         let h = moment_jacobian(&rotation_from_rpy(&psi), &p)?;
         let u = moment_update(&Vec3::zeros(), &prior.pm, &h, z, prior.r_var)?;
         Some(Particle {
             psi,
             p,
-            s,
             m: u.m,
-            pm: pack3(&u.pm),
+            s,
             log_w: u.log_lik,
+            extra: pack3(&u.pm),
         })
     }
 
     /// The moment's Kalman update with the pulse; the weight is its marginal likelihood.
-    fn weigh(&mut self, rot: &Mat3, z: &Vec3, r_var: f32) -> Option<(f32, f32)> {
-        let u = moment_jacobian(rot, &self.p)
-            .and_then(|h| moment_update(&self.m, &unpack3(&self.pm), &h, z, r_var))?;
-        self.m = u.m;
-        self.pm = pack3(&u.pm);
+    fn weigh(q: &mut Particle, rot: &Mat3, z: &Vec3, r_var: f32) -> Option<(f32, f32)> {
+        let u = moment_jacobian(rot, &q.p)
+            .and_then(|h| moment_update(&q.m, &unpack3(&q.extra), &h, z, r_var))?;
+        q.m = u.m;
+        q.extra = pack3(&u.pm);
         Some((u.d2, u.log_lik))
     }
 
     /// Roughens the position only (the moments keep their Kalman filters).
-    fn roughen(&mut self, rng: &mut Prng, k: f32) {
-        let jp = gauss3(rng) * (k * self.p.norm());
-        self.p += jp;
-    }
-
-    fn psi(&self) -> Rpy {
-        self.psi
-    }
-    fn p(&self) -> Vec3 {
-        self.p
-    }
-    fn m(&self) -> Vec3 {
-        self.m
-    }
-    fn s(&self) -> f32 {
-        self.s
-    }
-    fn set_pose(&mut self, psi: Rpy, p: Vec3) {
-        self.psi = psi;
-        self.p = p;
+    fn roughen(q: &mut Particle, rng: &mut Prng, k: f32) {
+        let jp = gauss3(rng) * (k * q.p.norm());
+        q.p += jp;
     }
 }
 
 particle_filter!(
     /// Rao-Blackwellized particle filter with room for `N` particles (no heap).
     Rbpf,
-    Particle
+    RaoBlackwell
 );
