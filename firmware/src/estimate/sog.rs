@@ -290,36 +290,14 @@ impl<const N: usize> SogFilter<N> {
             return Ok(report);
         }
 
-        let u = MotionVec::from_column_slice(&[
-            motion.translation.x,
-            motion.translation.y,
-            motion.translation.z,
-            motion.rotation.x,
-            motion.rotation.y,
-            motion.rotation.z,
-        ]);
-        let q = if self.exact_motion() {
-            MotionMat::zeros()
-        } else {
-            (motion.cov + motion.cov.transpose()) * 0.5
-        };
         let r_var = self.noise_var(&z);
         // Absolute attitude of R_k (see `gaussian::attitude_update`); with a known trajectory the
         // orientation is already exact.
         let fuse_attitude = !self.exact_motion();
         let att_r = (attitude.cov + attitude.cov.transpose()) * 0.5;
 
-        let mut inp = StepInput::new(&u, &q, &z, r_var);
+        let mut inp = step_input(&self.config, motion, &z, r_var);
         inp.scale_rev = scale_rev;
-        if motion.has_absolute() {
-            // With a known trajectory the absolute part is exact too.
-            let qa = if self.exact_motion() {
-                Mat3::zeros()
-            } else {
-                (motion.absolute_cov + motion.absolute_cov.transpose()) * 0.5
-            };
-            inp = inp.with_absolute(&motion.absolute, &qa);
-        }
         mark(Phase::Setup);
         let att = fuse_attitude.then_some((&attitude.rpy, &att_r));
         // Outlier gate, only on a pulse that follows a consistent one (see `OUTLIER_RUN`).
@@ -502,6 +480,43 @@ pub(crate) fn check_inputs(
     check_covariance(&motion.absolute_cov)?;
     check_covariance(&attitude.cov)?;
     check_physical_range(motion, attitude)
+}
+
+/// The EKF input of one step (IROS eq. 5–9) for pulse `z` (µA/m) with noise variance
+/// `r_var` after `motion`: the odometry and its covariance and the absolute part, both
+/// exact (zero covariance) with a known trajectory. Shared with the baselines.
+pub(crate) fn step_input(
+    config: &SogConfig,
+    motion: &Displacement,
+    z: &Vec3,
+    r_var: f32,
+) -> StepInput {
+    let exact = config.mode == Mode::KnownTrajectory;
+    let u = MotionVec::from_column_slice(&[
+        motion.translation.x,
+        motion.translation.y,
+        motion.translation.z,
+        motion.rotation.x,
+        motion.rotation.y,
+        motion.rotation.z,
+    ]);
+    let q = if exact {
+        MotionMat::zeros()
+    } else {
+        (motion.cov + motion.cov.transpose()) * 0.5
+    };
+    let inp = StepInput::new(&u, &q, z, r_var);
+    if motion.has_absolute() {
+        // With a known trajectory the absolute part is exact too.
+        let qa = if exact {
+            Mat3::zeros()
+        } else {
+            (motion.absolute_cov + motion.absolute_cov.transpose()) * 0.5
+        };
+        inp.with_absolute(&motion.absolute, &qa)
+    } else {
+        inp
+    }
 }
 
 /// Largest translation between two pulses the filter accepts (m): a walking rescuer

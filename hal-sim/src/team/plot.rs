@@ -2,7 +2,7 @@
 //! corrected tracks (rescuer colours), victims with 2σ ellipses and labels, and when the
 //! truth is known the true victims (black crosses) and true tracks (grey).
 use super::map::TeamMap;
-use crate::demo::{Canvas, write_png};
+use crate::demo::{Canvas, ellipse_n, en, write_png};
 use anyhow::Result;
 use embedded_graphics::mono_font::{MonoTextStyle, ascii::FONT_6X10};
 use embedded_graphics::pixelcolor::Rgb888;
@@ -27,28 +27,6 @@ const COLOURS: [RGBColor; 4] = [
     RGBColor(0, 150, 70),
 ];
 const SIZE: u32 = 900;
-
-/// Map coordinates: x = east (−west), y = north.
-fn en(p: [f64; 2]) -> (f64, f64) {
-    (-p[1], p[0])
-}
-
-/// The 2σ ellipse of `[xx, xy, yy]` around `m` (north, west).
-fn ellipse(m: [f64; 2], c: [f64; 3]) -> Vec<(f64, f64)> {
-    let (a, b, d) = (c[0], c[1], c[2]);
-    let half = 0.5 * (a - d);
-    let r = (half * half + b * b).sqrt();
-    let (l1, l2) = ((0.5 * (a + d) + r).max(0.0), (0.5 * (a + d) - r).max(0.0));
-    let th = 0.5 * (2.0 * b).atan2(a - d);
-    let (s, co) = th.sin_cos();
-    (0..=36)
-        .map(|i| {
-            let u = f64::from(i) / 36.0 * std::f64::consts::TAU;
-            let (x, y) = (2.0 * l1.sqrt() * u.cos(), 2.0 * l2.sqrt() * u.sin());
-            en([m[0] + co * x - s * y, m[1] + s * x + co * y])
-        })
-        .collect()
-}
 
 fn e<E: std::fmt::Debug>(err: E) -> anyhow::Error {
     anyhow::anyhow!("{err:?}")
@@ -123,7 +101,7 @@ pub fn plot(map: &TeamMap, truth: Option<&TruthOverlay>, path: &Path) -> Result<
             };
             chart
                 .draw_series(std::iter::once(PathElement::new(
-                    ellipse(p, c),
+                    ellipse_n(p, c, 36),
                     RED.stroke_width(2),
                 )))
                 .map_err(e)?;

@@ -24,7 +24,7 @@ use super::super::{
     Attitude, Displacement, EstimateError, Estimator, Mode, SogConfig, StepOutcome, StepReport,
     VictimEstimate,
 };
-use super::{initial_region, step_input, step_report, strong_enough};
+use super::{initial_region, noise_var, step_input, step_report, strong_enough};
 use crate::frame::{Rpy, rotation_from_rpy};
 use crate::{Mat3, Vec3};
 
@@ -121,7 +121,7 @@ impl SingleEkf {
 impl SingleEkf {
     /// One step of the initialized filter with pulse `z` (µA/m in `R_k`).
     fn advance(&mut self, motion: &Displacement, attitude: &Attitude, z: &Vec3) -> StepReport {
-        let inp = step_input(&self.config, motion, z);
+        let inp = step_input(&self.config, motion, z, noise_var(&self.config, z));
         let att_r = (attitude.cov + attitude.cov.transpose()) * 0.5;
         let att = (self.config.mode == Mode::Robocentric).then_some((&attitude.rpy, &att_r));
         match step_component(&inp, &self.x, &self.p, att) {

@@ -32,10 +32,10 @@ pub use pf::ParticleFilter;
 pub use rbpf::Rbpf;
 pub use rng::Prng;
 
-use super::gaussian::{Component, StepInput, cholesky3, lower_inverse3};
+use super::gaussian::{Component, cholesky3, lower_inverse3};
 use super::init::initialize;
-use super::model::{FIELD_SCALE, I_P, MotionMat, MotionVec};
-use super::sog::check_inputs;
+use super::model::{FIELD_SCALE, I_P};
+use super::sog::{check_inputs, step_input};
 use super::{
     Attitude, Displacement, EstimateError, Mode, Pulse, SogConfig, StepOutcome, StepReport,
 };
@@ -171,36 +171,6 @@ pub(crate) fn sign_ambiguous_log_lik(d2_pos: f32, d2_neg: f32) -> f32 {
         (d2_neg, d2_pos)
     };
     -0.5 * lo + libm::log1pf(libm::expf(-0.5 * (hi - lo)))
-}
-
-/// The SOGs filter's per-pulse EKF input: displacement (exact with a known trajectory),
-/// its covariance, the absolute part, the pulse and its noise.
-pub(crate) fn step_input(config: &SogConfig, motion: &Displacement, z: &Vec3) -> StepInput {
-    let exact = config.mode == Mode::KnownTrajectory;
-    let u = MotionVec::from_column_slice(&[
-        motion.translation.x,
-        motion.translation.y,
-        motion.translation.z,
-        motion.rotation.x,
-        motion.rotation.y,
-        motion.rotation.z,
-    ]);
-    let q = if exact {
-        MotionMat::zeros()
-    } else {
-        (motion.cov + motion.cov.transpose()) * 0.5
-    };
-    let inp = StepInput::new(&u, &q, z, noise_var(config, z));
-    if motion.has_absolute() {
-        let qa = if exact {
-            Mat3::zeros()
-        } else {
-            (motion.absolute_cov + motion.absolute_cov.transpose()) * 0.5
-        };
-        inp.with_absolute(&motion.absolute, &qa)
-    } else {
-        inp
-    }
 }
 
 /// The initial region for pulse `z_body` (µA/m in `R_1`): the SOGs filter's
