@@ -55,12 +55,7 @@ impl SingleEkf {
 
     /// Initializes on the flux line of pulse `z` (µA/m in `R_1`); `Waiting` when the pulse
     /// is too weak or cannot be inverted.
-    fn try_initialize(
-        &mut self,
-        attitude: &Attitude,
-        z: &Vec3,
-        outcome: StepOutcome,
-    ) -> StepReport {
+    fn try_initialize(&mut self, attitude: &Attitude, z: &Vec3, kind: StepOutcome) -> StepReport {
         self.initialized = false;
         self.inconsistent_pulses = 0;
         if !strong_enough(&self.config, z) {
@@ -114,7 +109,7 @@ impl SingleEkf {
         self.x = mean;
         self.p = cov;
         self.initialized = true;
-        step_report(outcome, 1, 0.0, 0)
+        step_report(kind, 1, 0.0, 0)
     }
 }
 

@@ -139,12 +139,7 @@ impl<const NX: usize, const NY: usize> HistogramFilter<NX, NY> {
     }
 
     /// Builds the grid around the receiver from pulse `z` (µA/m in `R_1`).
-    fn try_initialize(
-        &mut self,
-        attitude: &Attitude,
-        z: &Vec3,
-        outcome: StepOutcome,
-    ) -> StepReport {
+    fn try_initialize(&mut self, attitude: &Attitude, z: &Vec3, kind: StepOutcome) -> StepReport {
         self.initialized = false;
         if !strong_enough(&self.config, z) {
             return step_report(StepOutcome::Waiting, 0, 0.0, 0);
@@ -192,7 +187,7 @@ impl<const NX: usize, const NY: usize> HistogramFilter<NX, NY> {
             return step_report(StepOutcome::Waiting, 0, 0.0, 0);
         }
         self.initialized = true;
-        step_report(outcome, NX * NY * DEPTH_LAYERS, 0.0, 0)
+        step_report(kind, NX * NY * DEPTH_LAYERS, 0.0, 0)
     }
 
     /// Moves the receiver by the displacement and accumulates its variance.

@@ -182,12 +182,7 @@ impl<M: ParticleModel, const N: usize> ParticleSet<M, N> {
     /// Draws the particles from pulse `z` (µA/m in `R_1`): positions from the initial
     /// region (IROS III-B), orientations from the IMU attitude, the scale from its prior
     /// and the moment from the model.
-    fn try_initialize(
-        &mut self,
-        attitude: &Attitude,
-        z: &Vec3,
-        outcome: StepOutcome,
-    ) -> StepReport {
+    fn try_initialize(&mut self, attitude: &Attitude, z: &Vec3, kind: StepOutcome) -> StepReport {
         self.particles.clear();
         self.inconsistent_pulses = 0;
         if !strong_enough(&self.config, z) {
@@ -222,8 +217,8 @@ impl<M: ParticleModel, const N: usize> ParticleSet<M, N> {
         }
         self.settle_initial();
         let n = self.particles.len();
-        let outcome = if n > 0 { outcome } else { StepOutcome::Waiting };
-        step_report(outcome, n, 0.0, 0)
+        let kind = if n > 0 { kind } else { StepOutcome::Waiting };
+        step_report(kind, n, 0.0, 0)
     }
 
     /// Normalizes freshly drawn weights (dropping the set if none is usable) and, for
