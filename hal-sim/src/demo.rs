@@ -317,21 +317,26 @@ const SNAPSHOT_COLOURS: [RGBColor; 6] = [
 ];
 
 /// Map coordinates: x = east (−west), y = north.
-fn en(p: [f64; 2]) -> (f64, f64) {
+pub(crate) fn en(p: [f64; 2]) -> (f64, f64) {
     (-p[1], p[0])
 }
 
 /// The 2σ ellipse of a horizontal covariance `[xx, xy, yy]` around `m` (north, west).
 fn ellipse(m: [f64; 2], c: [f64; 3]) -> Vec<(f64, f64)> {
+    ellipse_n(m, c, 32)
+}
+
+/// [`ellipse`] drawn with `n` segments.
+pub(crate) fn ellipse_n(m: [f64; 2], c: [f64; 3], n: u32) -> Vec<(f64, f64)> {
     let (a, b, d) = (c[0], c[1], c[2]);
     let half = 0.5 * (a - d);
     let r = (half * half + b * b).sqrt();
     let (l1, l2) = ((0.5 * (a + d) + r).max(0.0), (0.5 * (a + d) - r).max(0.0));
     let th = 0.5 * (2.0 * b).atan2(a - d);
     let (s, co) = th.sin_cos();
-    (0..=32)
+    (0..=n)
         .map(|i| {
-            let u = i as f64 / 32.0 * std::f64::consts::TAU;
+            let u = f64::from(i) / f64::from(n) * std::f64::consts::TAU;
             let (x, y) = (2.0 * l1.sqrt() * u.cos(), 2.0 * l2.sqrt() * u.sin());
             en([m[0] + co * x - s * y, m[1] + s * x + co * y])
         })

@@ -122,27 +122,6 @@ impl<const N: usize> SogFilter<N> {
         bkg * bkg + sen * sen
     }
 
-    /// Checks a pulse: finite, non-zero, not saturated, time not going back.
-    fn check_pulse(&self, pulse: &Pulse) -> Result<(), EstimateError> {
-        if !(pulse.h.iter().all(|v| v.is_finite()) && pulse.t.is_finite()) {
-            return Err(EstimateError::NonFinite);
-        }
-        if pulse.h.iter().all(|v| *v == 0.0) {
-            return Err(EstimateError::ZeroField);
-        }
-        if pulse
-            .h
-            .iter()
-            .any(|v| libm::fabsf(*v) >= self.config.h_saturation)
-        {
-            return Err(EstimateError::Saturated);
-        }
-        if self.last_t.is_some_and(|t| pulse.t < t) {
-            return Err(EstimateError::TimeWentBackwards);
-        }
-        Ok(())
-    }
-
     fn exact_motion(&self) -> bool {
         self.config.mode == Mode::KnownTrajectory
     }
@@ -300,18 +279,7 @@ impl<const N: usize> SogFilter<N> {
         mut mark: impl FnMut(Phase),
     ) -> Result<StepReport, EstimateError> {
         // Validate every input before touching the state.
-        self.check_pulse(pulse)?;
-        if !(motion.translation.iter().all(|v| v.is_finite())
-            && motion.absolute.iter().all(|v| v.is_finite())
-            && motion.rotation.iter().all(|v| v.is_finite())
-            && attitude.rpy.iter().all(|v| v.is_finite()))
-        {
-            return Err(EstimateError::NonFinite);
-        }
-        check_covariance(&motion.cov)?;
-        check_covariance(&motion.absolute_cov)?;
-        check_covariance(&attitude.cov)?;
-        check_physical_range(motion, attitude)?;
+        check_inputs(&self.config, self.last_t, motion, attitude, pulse)?;
         let scale_rev = self.scale_reversion(pulse.t);
         self.last_t = Some(pulse.t);
         let z = pulse.h * FIELD_SCALE;
@@ -322,36 +290,14 @@ impl<const N: usize> SogFilter<N> {
             return Ok(report);
         }
 
-        let u = MotionVec::from_column_slice(&[
-            motion.translation.x,
-            motion.translation.y,
-            motion.translation.z,
-            motion.rotation.x,
-            motion.rotation.y,
-            motion.rotation.z,
-        ]);
-        let q = if self.exact_motion() {
-            MotionMat::zeros()
-        } else {
-            (motion.cov + motion.cov.transpose()) * 0.5
-        };
         let r_var = self.noise_var(&z);
         // Absolute attitude of R_k (see `gaussian::attitude_update`); with a known trajectory the
         // orientation is already exact.
         let fuse_attitude = !self.exact_motion();
         let att_r = (attitude.cov + attitude.cov.transpose()) * 0.5;
 
-        let mut inp = StepInput::new(&u, &q, &z, r_var);
+        let mut inp = step_input(&self.config, motion, &z, r_var);
         inp.scale_rev = scale_rev;
-        if motion.has_absolute() {
-            // With a known trajectory the absolute part is exact too.
-            let qa = if self.exact_motion() {
-                Mat3::zeros()
-            } else {
-                (motion.absolute_cov + motion.absolute_cov.transpose()) * 0.5
-            };
-            inp = inp.with_absolute(&motion.absolute, &qa);
-        }
         mark(Phase::Setup);
         let att = fuse_attitude.then_some((&attitude.rpy, &att_r));
         // Outlier gate, only on a pulse that follows a consistent one (see `OUTLIER_RUN`).
@@ -494,6 +440,82 @@ impl<const N: usize> Estimator for SogFilter<N> {
 
     fn is_initialized(&self) -> bool {
         self.initialized
+    }
+}
+
+/// The input checks of one step (finite, unsaturated, non-zero pulse, time not going
+/// back after `last_t`, valid covariances, physical ranges), shared with the baselines:
+/// they run before the state is touched, so a refused input changes nothing.
+pub(crate) fn check_inputs(
+    config: &SogConfig,
+    last_t: Option<f32>,
+    motion: &Displacement,
+    attitude: &Attitude,
+    pulse: &Pulse,
+) -> Result<(), EstimateError> {
+    if !(pulse.h.iter().all(|v| v.is_finite()) && pulse.t.is_finite()) {
+        return Err(EstimateError::NonFinite);
+    }
+    if pulse.h.iter().all(|v| *v == 0.0) {
+        return Err(EstimateError::ZeroField);
+    }
+    if pulse
+        .h
+        .iter()
+        .any(|v| libm::fabsf(*v) >= config.h_saturation)
+    {
+        return Err(EstimateError::Saturated);
+    }
+    if last_t.is_some_and(|t| pulse.t < t) {
+        return Err(EstimateError::TimeWentBackwards);
+    }
+    if !(motion.translation.iter().all(|v| v.is_finite())
+        && motion.absolute.iter().all(|v| v.is_finite())
+        && motion.rotation.iter().all(|v| v.is_finite())
+        && attitude.rpy.iter().all(|v| v.is_finite()))
+    {
+        return Err(EstimateError::NonFinite);
+    }
+    check_covariance(&motion.cov)?;
+    check_covariance(&motion.absolute_cov)?;
+    check_covariance(&attitude.cov)?;
+    check_physical_range(motion, attitude)
+}
+
+/// The EKF input of one step (IROS eq. 5–9) for pulse `z` (µA/m) with noise variance
+/// `r_var` after `motion`: the odometry and its covariance and the absolute part, both
+/// exact (zero covariance) with a known trajectory. Shared with the baselines.
+pub(crate) fn step_input(
+    config: &SogConfig,
+    motion: &Displacement,
+    z: &Vec3,
+    r_var: f32,
+) -> StepInput {
+    let exact = config.mode == Mode::KnownTrajectory;
+    let u = MotionVec::from_column_slice(&[
+        motion.translation.x,
+        motion.translation.y,
+        motion.translation.z,
+        motion.rotation.x,
+        motion.rotation.y,
+        motion.rotation.z,
+    ]);
+    let q = if exact {
+        MotionMat::zeros()
+    } else {
+        (motion.cov + motion.cov.transpose()) * 0.5
+    };
+    let inp = StepInput::new(&u, &q, z, r_var);
+    if motion.has_absolute() {
+        // With a known trajectory the absolute part is exact too.
+        let qa = if exact {
+            Mat3::zeros()
+        } else {
+            (motion.absolute_cov + motion.absolute_cov.transpose()) * 0.5
+        };
+        inp.with_absolute(&motion.absolute, &qa)
+    } else {
+        inp
     }
 }
 

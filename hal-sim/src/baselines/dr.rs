@@ -2,7 +2,9 @@
 //! fixed at the first pulse, from the per-pulse [`Displacement`] and [`Attitude`] the
 //! SOGs filter gets, and the checks every baseline applies to its inputs.
 use crate::physics::{M3, V3, rotation_from_rpy};
-use firmware::estimate::{Attitude, Displacement, EstimateError, Pulse};
+use firmware::estimate::{
+    Attitude, Displacement, EstimateError, Pulse, StepOutcome, StepReport, VictimEstimate,
+};
 
 /// Largest displacement between two pulses accepted, m (a pulse period at a run is < 10 m).
 const MAX_STEP_M: f64 = 1e3;
@@ -29,6 +31,44 @@ pub struct WorldPulse {
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct DeadReckoning {
     last: Option<WorldPulse>,
+}
+
+/// The report of a batch baseline's accepted pulse: one hypothesis, `Initialized` on the
+/// first pulse and `Updated` after (these fits have no gating, pruning or merging).
+pub(crate) fn single_report(first: bool) -> StepReport {
+    StepReport {
+        outcome: if first {
+            StepOutcome::Initialized
+        } else {
+            StepOutcome::Updated
+        },
+        n_components: 1,
+        best_d2: 0.0,
+        pruned: 0,
+        merged: 0,
+        split: 0,
+        dropped: 0,
+    }
+}
+
+/// The estimate of a batch baseline: one hypothesis at `rel` (m, from the receiver, world
+/// axes) with covariance `cov` and moment `moment`, unit scale, the last attitude `rpy`.
+pub(crate) fn single_estimate(
+    rel: &V3,
+    cov: firmware::Mat3,
+    moment: firmware::Vec3,
+    rpy: firmware::Vec3,
+) -> VictimEstimate {
+    VictimEstimate {
+        p: crate::physics::to_f32(rel),
+        cov,
+        moment,
+        scale: 1.0,
+        scale_sigma: 0.0,
+        rpy,
+        n_components: 1,
+        max_weight: 1.0,
+    }
 }
 
 fn v3(v: &firmware::Vec3) -> V3 {

@@ -19,11 +19,10 @@
 //! moment that explains the first pulse exactly, runs a few iterations from each, refines
 //! the most promising to convergence, keeps the best, and warm-starts from it on the next
 //! pulse (a full multi-start again every few pulses).
-use super::dr::{DeadReckoning, WorldPulse};
+use super::dr::{DeadReckoning, WorldPulse, single_estimate, single_report};
 use crate::physics::{M3, V3, dipole_field};
 use firmware::estimate::{
-    Attitude, Displacement, EstimateError, Estimator, Pulse, SogConfig, StepOutcome, StepReport,
-    VictimEstimate,
+    Attitude, Displacement, EstimateError, Estimator, Pulse, SogConfig, StepReport, VictimEstimate,
 };
 use firmware::nalgebra::{SMatrix, SVector};
 use std::f64::consts::PI;
@@ -389,19 +388,7 @@ impl Estimator for LmFit {
         self.obs.push(self.obs_of(&w));
         self.last_rpy = attitude.rpy;
         self.refit();
-        Ok(StepReport {
-            outcome: if first {
-                StepOutcome::Initialized
-            } else {
-                StepOutcome::Updated
-            },
-            n_components: 1,
-            best_d2: 0.0,
-            pruned: 0,
-            merged: 0,
-            split: 0,
-            dropped: 0,
-        })
+        Ok(single_report(first))
     }
 
     fn estimate(&self) -> Option<VictimEstimate> {
@@ -416,16 +403,9 @@ impl Estimator for LmFit {
             });
         let rel = pt - rx;
         let m = th.fixed_rows::<3>(3).into_owned() * M_UNIT;
-        Some(VictimEstimate {
-            p: crate::physics::to_f32(&rel),
-            cov: cov.map(|x| x as f32),
-            moment: crate::physics::to_f32(&m),
-            scale: 1.0,
-            scale_sigma: 0.0,
-            rpy: self.last_rpy,
-            n_components: 1,
-            max_weight: 1.0,
-        })
+        let cov = cov.map(|x| x as f32);
+        let moment = crate::physics::to_f32(&m);
+        Some(single_estimate(&rel, cov, moment, self.last_rpy))
     }
 
     fn reset(&mut self) {

@@ -29,11 +29,10 @@
 //! γ = 1e8 (chosen on the synthetic walk of the tests, not on the report's scenarios).
 //! Positions enter Φ in units of [`LENGTH_UNIT_M`] so that the ten regressors are of
 //! comparable size (the normalization `1 + φᵀφ` is not scale-invariant).
-use super::dr::DeadReckoning;
+use super::dr::{DeadReckoning, single_estimate, single_report};
 use crate::physics::{M3, V3};
 use firmware::estimate::{
-    Attitude, Displacement, EstimateError, Estimator, Pulse, SogConfig, StepOutcome, StepReport,
-    VictimEstimate,
+    Attitude, Displacement, EstimateError, Estimator, Pulse, SogConfig, StepReport, VictimEstimate,
 };
 use firmware::nalgebra::{SMatrix, SVector};
 use std::f64::consts::PI;
@@ -313,19 +312,7 @@ impl Estimator for RlsIdentifier {
         self.last_rpy = attitude.rpy;
         let first = !self.initialized;
         self.initialized = true;
-        Ok(StepReport {
-            outcome: if first {
-                StepOutcome::Initialized
-            } else {
-                StepOutcome::Updated
-            },
-            n_components: 1,
-            best_d2: 0.0,
-            pruned: 0,
-            merged: 0,
-            split: 0,
-            dropped: 0,
-        })
+        Ok(single_report(first))
     }
 
     fn estimate(&self) -> Option<VictimEstimate> {
@@ -333,17 +320,10 @@ impl Estimator for RlsIdentifier {
             return None;
         }
         let rel = self.position()? - self.dr.last()?.p;
-        Some(VictimEstimate {
-            p: crate::physics::to_f32(&rel),
-            // The identifier has no covariance; a wide isotropic one says so.
-            cov: firmware::Mat3::identity() * 1e4,
-            moment: firmware::Vec3::zeros(),
-            scale: 1.0,
-            scale_sigma: 0.0,
-            rpy: self.last_rpy,
-            n_components: 1,
-            max_weight: 1.0,
-        })
+        // The identifier has no covariance; a wide isotropic one says so.
+        let cov = firmware::Mat3::identity() * 1e4;
+        let moment = firmware::Vec3::zeros();
+        Some(single_estimate(&rel, cov, moment, self.last_rpy))
     }
 
     fn reset(&mut self) {

@@ -2,6 +2,7 @@
 //! corrected tracks (rescuer colours), victims with 2σ ellipses and labels, and when the
 //! truth is known the true victims (black crosses) and true tracks (grey).
 use super::map::TeamMap;
+use crate::demo::{Canvas, ellipse_n, en, write_png};
 use anyhow::Result;
 use embedded_graphics::mono_font::{MonoTextStyle, ascii::FONT_6X10};
 use embedded_graphics::pixelcolor::Rgb888;
@@ -26,28 +27,6 @@ const COLOURS: [RGBColor; 4] = [
     RGBColor(0, 150, 70),
 ];
 const SIZE: u32 = 900;
-
-/// Map coordinates: x = east (−west), y = north.
-fn en(p: [f64; 2]) -> (f64, f64) {
-    (-p[1], p[0])
-}
-
-/// The 2σ ellipse of `[xx, xy, yy]` around `m` (north, west).
-fn ellipse(m: [f64; 2], c: [f64; 3]) -> Vec<(f64, f64)> {
-    let (a, b, d) = (c[0], c[1], c[2]);
-    let half = 0.5 * (a - d);
-    let r = (half * half + b * b).sqrt();
-    let (l1, l2) = ((0.5 * (a + d) + r).max(0.0), (0.5 * (a + d) - r).max(0.0));
-    let th = 0.5 * (2.0 * b).atan2(a - d);
-    let (s, co) = th.sin_cos();
-    (0..=36)
-        .map(|i| {
-            let u = f64::from(i) / 36.0 * std::f64::consts::TAU;
-            let (x, y) = (2.0 * l1.sqrt() * u.cos(), 2.0 * l2.sqrt() * u.sin());
-            en([m[0] + co * x - s * y, m[1] + s * x + co * y])
-        })
-        .collect()
-}
 
 fn e<E: std::fmt::Debug>(err: E) -> anyhow::Error {
     anyhow::anyhow!("{err:?}")
@@ -122,7 +101,7 @@ pub fn plot(map: &TeamMap, truth: Option<&TruthOverlay>, path: &Path) -> Result<
             };
             chart
                 .draw_series(std::iter::once(PathElement::new(
-                    ellipse(p, c),
+                    ellipse_n(p, c, 36),
                     RED.stroke_width(2),
                 )))
                 .map_err(e)?;
@@ -190,50 +169,4 @@ pub fn plot(map: &TeamMap, truth: Option<&TruthOverlay>, path: &Path) -> Result<
         .draw(&mut canvas);
     }
     write_png(path, SIZE, SIZE, &buf)
-}
-
-fn write_png(path: &Path, w: u32, h: u32, rgb: &[u8]) -> Result<()> {
-    use anyhow::Context;
-    let file =
-        std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
-    let mut enc = png::Encoder::new(std::io::BufWriter::new(file), w, h);
-    enc.set_color(png::ColorType::Rgb);
-    enc.set_depth(png::BitDepth::Eight);
-    let mut writer = enc.write_header()?;
-    writer.write_image_data(rgb)?;
-    writer.finish()?;
-    Ok(())
-}
-
-/// An RGB byte buffer as an `embedded-graphics` target (for the labels).
-struct Canvas<'a> {
-    buf: &'a mut [u8],
-    w: u32,
-    h: u32,
-}
-
-impl OriginDimensions for Canvas<'_> {
-    fn size(&self) -> Size {
-        Size::new(self.w, self.h)
-    }
-}
-
-impl DrawTarget for Canvas<'_> {
-    type Color = Rgb888;
-    type Error = core::convert::Infallible;
-
-    fn draw_iter<I>(&mut self, pixels: I) -> Result<(), Self::Error>
-    where
-        I: IntoIterator<Item = embedded_graphics::Pixel<Self::Color>>,
-    {
-        for embedded_graphics::Pixel(p, c) in pixels {
-            if p.x >= 0 && p.y >= 0 && (p.x as u32) < self.w && (p.y as u32) < self.h {
-                let i = ((p.y as u32 * self.w + p.x as u32) * 3) as usize;
-                if let Some(px) = self.buf.get_mut(i..i + 3) {
-                    px.copy_from_slice(&[c.r(), c.g(), c.b()]);
-                }
-            }
-        }
-        Ok(())
-    }
 }

@@ -19,14 +19,12 @@
 //! see the tests. Memory: 10 + 100 floats, 440 bytes plus bookkeeping.
 
 use super::super::gaussian::step_component;
-use super::super::model::{
-    FIELD_SCALE, I_P, I_RPY, I_S, MOMENT_SCALE, StateMat, StateVec, m_of, p_of,
-};
+use super::super::model::{I_P, I_RPY, I_S, MOMENT_SCALE, StateMat, StateVec, m_of, p_of};
 use super::super::{
-    Attitude, Displacement, EstimateError, Estimator, Mode, Pulse, SogConfig, StepOutcome,
-    StepReport, VictimEstimate,
+    Attitude, Displacement, EstimateError, Estimator, Mode, SogConfig, StepOutcome, StepReport,
+    VictimEstimate,
 };
-use super::{check_inputs, initial_region, step_input, strong_enough};
+use super::{initial_region, noise_var, step_input, step_report, strong_enough};
 use crate::frame::{Rpy, rotation_from_rpy};
 use crate::{Mat3, Vec3};
 
@@ -57,16 +55,11 @@ impl SingleEkf {
 
     /// Initializes on the flux line of pulse `z` (µA/m in `R_1`); `Waiting` when the pulse
     /// is too weak or cannot be inverted.
-    fn try_initialize(
-        &mut self,
-        attitude: &Attitude,
-        z: &Vec3,
-        outcome: StepOutcome,
-    ) -> StepReport {
+    fn try_initialize(&mut self, attitude: &Attitude, z: &Vec3, kind: StepOutcome) -> StepReport {
         self.initialized = false;
         self.inconsistent_pulses = 0;
         if !strong_enough(&self.config, z) {
-            return waiting();
+            return step_report(StepOutcome::Waiting, 0, 0.0, 0);
         }
         let region = initial_region(&self.config, attitude, z);
         let z_g = rotation_from_rpy(&attitude.rpy) * z;
@@ -100,7 +93,7 @@ impl SingleEkf {
             .iter()
             .max_by(|a, b| score(&a.x).total_cmp(&score(&b.x)))
         else {
-            return waiting();
+            return step_report(StepOutcome::Waiting, 0, 0.0, 0);
         };
         let mean = best.x;
         let w_sum: f32 = region.iter().map(|c| libm::expf(c.log_w)).sum();
@@ -111,49 +104,19 @@ impl SingleEkf {
         }
         cov = (cov + cov.transpose()) * 0.5;
         if !(mean.iter().all(|v| v.is_finite()) && cov.iter().all(|v| v.is_finite())) {
-            return waiting();
+            return step_report(StepOutcome::Waiting, 0, 0.0, 0);
         }
         self.x = mean;
         self.p = cov;
         self.initialized = true;
-        StepReport {
-            outcome,
-            n_components: 1,
-            best_d2: 0.0,
-            pruned: 0,
-            merged: 0,
-            split: 0,
-            dropped: 0,
-        }
+        step_report(kind, 1, 0.0, 0)
     }
 }
 
-fn waiting() -> StepReport {
-    StepReport {
-        outcome: StepOutcome::Waiting,
-        n_components: 0,
-        best_d2: 0.0,
-        pruned: 0,
-        merged: 0,
-        split: 0,
-        dropped: 0,
-    }
-}
-
-impl Estimator for SingleEkf {
-    fn step(
-        &mut self,
-        motion: &Displacement,
-        attitude: &Attitude,
-        pulse: &Pulse,
-    ) -> Result<StepReport, EstimateError> {
-        check_inputs(&self.config, self.last_t, motion, attitude, pulse)?;
-        self.last_t = Some(pulse.t);
-        let z = pulse.h * FIELD_SCALE;
-        if !self.initialized {
-            return Ok(self.try_initialize(attitude, &z, StepOutcome::Initialized));
-        }
-        let inp = step_input(&self.config, motion, &z);
+impl SingleEkf {
+    /// One step of the initialized filter with pulse `z` (µA/m in `R_k`).
+    fn advance(&mut self, motion: &Displacement, attitude: &Attitude, z: &Vec3) -> StepReport {
+        let inp = step_input(&self.config, motion, z, noise_var(&self.config, z));
         let att_r = (attitude.cov + attitude.cov.transpose()) * 0.5;
         let att = (self.config.mode == Mode::Robocentric).then_some((&attitude.rpy, &att_r));
         match step_component(&inp, &self.x, &self.p, att) {
@@ -166,30 +129,26 @@ impl Estimator for SingleEkf {
                     self.inconsistent_pulses = 0;
                 }
                 if self.inconsistent_pulses >= self.config.divergence_pulses {
-                    let mut r = self.try_initialize(attitude, &z, StepOutcome::Reinitialized);
+                    let mut r = self.try_initialize(attitude, z, StepOutcome::Reinitialized);
                     r.best_d2 = inn.d2;
-                    return Ok(r);
+                    return r;
                 }
-                Ok(StepReport {
-                    outcome: StepOutcome::Updated,
-                    n_components: 1,
-                    best_d2: inn.d2,
-                    pruned: 0,
-                    merged: 0,
-                    split: 0,
-                    dropped: 0,
-                })
+                step_report(StepOutcome::Updated, 1, inn.d2, 0)
             }
             // The model failed (transmitter hypothesis inside the antenna, S not PD):
             // the Gaussian is lost, rebuild from this pulse as the SOGs filter does
             // when no component survives.
             Err(_) => {
-                let mut r = self.try_initialize(attitude, &z, StepOutcome::Reinitialized);
+                let mut r = self.try_initialize(attitude, z, StepOutcome::Reinitialized);
                 r.dropped = 1;
-                Ok(r)
+                r
             }
         }
     }
+}
+
+impl Estimator for SingleEkf {
+    super::staged_step!();
 
     fn estimate(&self) -> Option<VictimEstimate> {
         if !self.initialized {

@@ -23,11 +23,11 @@
 
 use super::super::model::{FIELD_SCALE, K_H, MOMENT_SCALE};
 use super::super::{
-    Attitude, Displacement, EstimateError, Estimator, Pulse, SogConfig, StepOutcome, StepReport,
+    Attitude, Displacement, EstimateError, Estimator, SogConfig, StepOutcome, StepReport,
     VictimEstimate,
 };
 use super::super::{Mode, init::noise_widening};
-use super::{LOG_ZERO, Weighted, check_inputs, noise_var, sign_ambiguous_log_lik, strong_enough};
+use super::{LOG_ZERO, Weighted, noise_var, sign_ambiguous_log_lik, step_report, strong_enough};
 use crate::dipole::{field, moment_from_field, range_bounds};
 use crate::frame::{Rpy, rotation_from_rpy};
 use crate::{Mat3, Vec3};
@@ -139,15 +139,10 @@ impl<const NX: usize, const NY: usize> HistogramFilter<NX, NY> {
     }
 
     /// Builds the grid around the receiver from pulse `z` (µA/m in `R_1`).
-    fn try_initialize(
-        &mut self,
-        attitude: &Attitude,
-        z: &Vec3,
-        outcome: StepOutcome,
-    ) -> StepReport {
+    fn try_initialize(&mut self, attitude: &Attitude, z: &Vec3, kind: StepOutcome) -> StepReport {
         self.initialized = false;
         if !strong_enough(&self.config, z) {
-            return report(StepOutcome::Waiting, 0);
+            return step_report(StepOutcome::Waiting, 0, 0.0, 0);
         }
         let widen = noise_widening(noise_var(&self.config, z), z.norm());
         let Ok((_, r_hi)) = range_bounds(
@@ -155,7 +150,7 @@ impl<const NX: usize, const NY: usize> HistogramFilter<NX, NY> {
             self.config.m_min / widen,
             self.config.m_max * widen,
         ) else {
-            return report(StepOutcome::Waiting, 0);
+            return step_report(StepOutcome::Waiting, 0, 0.0, 0);
         };
         let half = r_hi.max(1.0);
         self.cell = 2.0 * half / NX.min(NY) as f32;
@@ -189,10 +184,10 @@ impl<const NX: usize, const NY: usize> HistogramFilter<NX, NY> {
             }
         }
         if super::normalize(self.flat_mut()).is_none() {
-            return report(StepOutcome::Waiting, 0);
+            return step_report(StepOutcome::Waiting, 0, 0.0, 0);
         }
         self.initialized = true;
-        report(outcome, NX * NY * DEPTH_LAYERS)
+        step_report(kind, NX * NY * DEPTH_LAYERS, 0.0, 0)
     }
 
     /// Moves the receiver by the displacement and accumulates its variance.
@@ -371,40 +366,22 @@ fn cell_update(c: &Cell, r: &Vec3, z_g: &Vec3, r_var: f32, delta: f32, n: f32) -
     }
 }
 
-fn report(outcome: StepOutcome, n: usize) -> StepReport {
-    StepReport {
-        outcome,
-        n_components: n,
-        best_d2: 0.0,
-        pruned: 0,
-        merged: 0,
-        split: 0,
-        dropped: 0,
+impl<const NX: usize, const NY: usize> HistogramFilter<NX, NY> {
+    /// One step of the initialized filter with pulse `z` (µA/m in `R_k`).
+    fn advance(&mut self, motion: &Displacement, attitude: &Attitude, z: &Vec3) -> StepReport {
+        self.predict(motion);
+        self.update(attitude, z);
+        self.last_rpy = attitude.rpy;
+        if super::normalize(self.flat_mut()).is_none() {
+            return self.try_initialize(attitude, z, StepOutcome::Reinitialized);
+        }
+        self.maybe_zoom();
+        step_report(StepOutcome::Updated, NX * NY * DEPTH_LAYERS, 0.0, 0)
     }
 }
 
 impl<const NX: usize, const NY: usize> Estimator for HistogramFilter<NX, NY> {
-    fn step(
-        &mut self,
-        motion: &Displacement,
-        attitude: &Attitude,
-        pulse: &Pulse,
-    ) -> Result<StepReport, EstimateError> {
-        check_inputs(&self.config, self.last_t, motion, attitude, pulse)?;
-        self.last_t = Some(pulse.t);
-        let z = pulse.h * FIELD_SCALE;
-        if !self.initialized {
-            return Ok(self.try_initialize(attitude, &z, StepOutcome::Initialized));
-        }
-        self.predict(motion);
-        self.update(attitude, &z);
-        self.last_rpy = attitude.rpy;
-        if super::normalize(self.flat_mut()).is_none() {
-            return Ok(self.try_initialize(attitude, &z, StepOutcome::Reinitialized));
-        }
-        self.maybe_zoom();
-        Ok(report(StepOutcome::Updated, NX * NY * DEPTH_LAYERS))
-    }
+    super::staged_step!();
 
     fn estimate(&self) -> Option<VictimEstimate> {
         if !self.initialized {

@@ -19,6 +19,7 @@
 
 pub mod ekf;
 pub mod grid;
+mod particles;
 pub mod pf;
 pub mod rbpf;
 mod rng;
@@ -31,11 +32,13 @@ pub use pf::ParticleFilter;
 pub use rbpf::Rbpf;
 pub use rng::Prng;
 
-use super::gaussian::{Component, StepInput, cholesky3, lower_inverse3};
+use super::gaussian::{Component, cholesky3, lower_inverse3};
 use super::init::initialize;
-use super::model::{FIELD_SCALE, I_P, MotionMat, MotionVec};
-use super::sog::check_physical_range;
-use super::{Attitude, Displacement, EstimateError, Mode, Pulse, SogConfig, check_covariance};
+use super::model::{FIELD_SCALE, I_P};
+use super::sog::{check_inputs, step_input};
+use super::{
+    Attitude, Displacement, EstimateError, Mode, Pulse, SogConfig, StepOutcome, StepReport,
+};
 use crate::frame::{Rpy, rotation_from_rpy, rpy_from_rotation, wrap_pi};
 use crate::{Mat3, Vec3};
 use nalgebra::SMatrix;
@@ -85,42 +88,65 @@ impl ParticleConfig {
     }
 }
 
-/// The SOGs filter's input checks (finite, unsaturated, non-zero pulse, time not going
-/// back, valid covariances, physical ranges): a refused input changes nothing.
-pub(crate) fn check_inputs(
+/// Checks one step's inputs against the last pulse time (a refused input changes
+/// nothing), then records the pulse's time and returns the pulse in µA/m.
+pub(crate) fn accept_pulse(
     config: &SogConfig,
-    last_t: Option<f32>,
+    last_t: &mut Option<f32>,
     motion: &Displacement,
     attitude: &Attitude,
     pulse: &Pulse,
-) -> Result<(), EstimateError> {
-    if !(pulse.h.iter().all(|v| v.is_finite()) && pulse.t.is_finite()) {
-        return Err(EstimateError::NonFinite);
+) -> Result<Vec3, EstimateError> {
+    check_inputs(config, *last_t, motion, attitude, pulse)?;
+    *last_t = Some(pulse.t);
+    Ok(pulse.h * FIELD_SCALE)
+}
+
+/// The [`Estimator::step`](super::Estimator::step) every baseline shares: check and
+/// accept the pulse ([`accept_pulse`], on the fields `config` and `last_t`), then build
+/// the filter from it (`try_initialize`) until initialized, and `advance` after.
+macro_rules! staged_step {
+    () => {
+        fn step(
+            &mut self,
+            motion: &$crate::estimate::Displacement,
+            attitude: &$crate::estimate::Attitude,
+            pulse: &$crate::estimate::Pulse,
+        ) -> Result<$crate::estimate::StepReport, $crate::estimate::EstimateError> {
+            let z = $crate::estimate::baselines::accept_pulse(
+                &self.config,
+                &mut self.last_t,
+                motion,
+                attitude,
+                pulse,
+            )?;
+            if !$crate::estimate::Estimator::is_initialized(self) {
+                let outcome = $crate::estimate::StepOutcome::Initialized;
+                return Ok(self.try_initialize(attitude, &z, outcome));
+            }
+            Ok(self.advance(motion, attitude, &z))
+        }
+    };
+}
+pub(crate) use staged_step;
+
+/// A step report with `n` hypotheses, the best squared distance and the number lost
+/// (the baselines neither prune, merge nor split).
+pub(crate) fn step_report(
+    outcome: StepOutcome,
+    n: usize,
+    best_d2: f32,
+    dropped: u16,
+) -> StepReport {
+    StepReport {
+        outcome,
+        n_components: n,
+        best_d2,
+        pruned: 0,
+        merged: 0,
+        split: 0,
+        dropped,
     }
-    if pulse.h.iter().all(|v| *v == 0.0) {
-        return Err(EstimateError::ZeroField);
-    }
-    if pulse
-        .h
-        .iter()
-        .any(|v| libm::fabsf(*v) >= config.h_saturation)
-    {
-        return Err(EstimateError::Saturated);
-    }
-    if last_t.is_some_and(|t| pulse.t < t) {
-        return Err(EstimateError::TimeWentBackwards);
-    }
-    if !(motion.translation.iter().all(|v| v.is_finite())
-        && motion.absolute.iter().all(|v| v.is_finite())
-        && motion.rotation.iter().all(|v| v.is_finite())
-        && attitude.rpy.iter().all(|v| v.is_finite()))
-    {
-        return Err(EstimateError::NonFinite);
-    }
-    check_covariance(&motion.cov)?;
-    check_covariance(&motion.absolute_cov)?;
-    check_covariance(&attitude.cov)?;
-    check_physical_range(motion, attitude)
 }
 
 /// Measurement noise variance per axis (ICRA eq. 10) for pulse `z` (µA/m), in (µA/m)².
@@ -145,36 +171,6 @@ pub(crate) fn sign_ambiguous_log_lik(d2_pos: f32, d2_neg: f32) -> f32 {
         (d2_neg, d2_pos)
     };
     -0.5 * lo + libm::log1pf(libm::expf(-0.5 * (hi - lo)))
-}
-
-/// The SOGs filter's per-pulse EKF input: displacement (exact with a known trajectory),
-/// its covariance, the absolute part, the pulse and its noise.
-pub(crate) fn step_input(config: &SogConfig, motion: &Displacement, z: &Vec3) -> StepInput {
-    let exact = config.mode == Mode::KnownTrajectory;
-    let u = MotionVec::from_column_slice(&[
-        motion.translation.x,
-        motion.translation.y,
-        motion.translation.z,
-        motion.rotation.x,
-        motion.rotation.y,
-        motion.rotation.z,
-    ]);
-    let q = if exact {
-        MotionMat::zeros()
-    } else {
-        (motion.cov + motion.cov.transpose()) * 0.5
-    };
-    let inp = StepInput::new(&u, &q, z, noise_var(config, z));
-    if motion.has_absolute() {
-        let qa = if exact {
-            Mat3::zeros()
-        } else {
-            (motion.absolute_cov + motion.absolute_cov.transpose()) * 0.5
-        };
-        inp.with_absolute(&motion.absolute, &qa)
-    } else {
-        inp
-    }
 }
 
 /// The initial region for pulse `z_body` (µA/m in `R_1`): the SOGs filter's

@@ -20,47 +20,24 @@
 //! moment's prior is `N(0, σ_m² I)` with `σ_m = m_max/√3` (so `E|m|² = m_max²`), and the
 //! first pulse is its first Kalman update.
 
+use super::super::SogConfig;
 use super::super::gaussian::{cholesky3, lower_inverse3};
-use super::super::model::{FIELD_SCALE, K_H, MOMENT_SCALE};
-use super::super::{
-    Attitude, Displacement, EstimateError, Estimator, Mode, Pulse, SogConfig, StepOutcome,
-    StepReport, VictimEstimate,
-};
-use super::{
-    LOG_ZERO, MotionNoise, ParticleConfig, Prng, Weighted, attitude_log_lik, attitude_whitener,
-    check_inputs, compose_pose, gauss3, initial_region, n_eff, noise_var, normalize, sample_region,
-    sign_ambiguous_log_lik, strong_enough, systematic_resample, weighted_moments,
-};
+use super::super::model::{K_H, MOMENT_SCALE};
+use super::particles::{ParticleModel, particle_filter};
+use super::{Prng, gauss3, sign_ambiguous_log_lik};
 use crate::dipole::field_matrix;
 use crate::frame::{Rpy, rotation_from_rpy};
 use crate::{Mat3, Vec3};
-use heapless::Vec;
 
-/// One particle: a pose hypothesis and the Kalman filter of the moment (68 bytes).
+/// The Rao-Blackwellized model: each particle carries a Kalman filter of the moment,
+/// whose mean is the particle's `m` and whose covariance is the extra state, packed as
+/// the upper triangle xx, xy, xz, yy, yz, zz (68 bytes per particle).
+/// One particle of the RBPF: pose, the moment's Kalman filter and the log-weight
+/// (68 bytes).
+pub(crate) type Particle = super::particles::Particle<[f32; 6]>;
+
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) struct Particle {
-    /// Orientation of `R_k` in `G_k` (rad).
-    psi: Rpy,
-    /// Transmitter position in `G_k` (m).
-    p: Vec3,
-    /// Scale factor of the dead-reckoned translation.
-    s: f32,
-    /// Mean of the moment in `G_k` (mA·m²).
-    m: Vec3,
-    /// Upper triangle of the moment's covariance: xx, xy, xz, yy, yz, zz.
-    pm: [f32; 6],
-    /// Log-weight.
-    log_w: f32,
-}
-
-impl Weighted for Particle {
-    fn log_w(&self) -> f32 {
-        self.log_w
-    }
-    fn set_log_w(&mut self, v: f32) {
-        self.log_w = v;
-    }
-}
+pub(crate) struct RaoBlackwell;
 
 /// Packs a symmetric 3×3 matrix.
 fn pack3(p: &Mat3) -> [f32; 6] {
@@ -139,248 +116,62 @@ fn moment_jacobian(rot: &Mat3, p: &Vec3) -> Option<Mat3> {
     Some(rot.tr_mul(&g) * K_H)
 }
 
-/// Rao-Blackwellized particle filter with room for `N` particles (no heap).
-#[derive(Debug, Clone, PartialEq)]
-pub struct Rbpf<const N: usize> {
-    config: SogConfig,
-    params: ParticleConfig,
-    particles: Vec<Particle, N>,
-    rng: Prng,
-    inconsistent_pulses: u8,
-    last_t: Option<f32>,
-    resamples: u32,
+/// Initialization constants: the moment's prior covariance `σ_m² I` and the pulse's
+/// noise variance.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Prior {
+    pm: Mat3,
+    r_var: f32,
 }
 
-impl<const N: usize> Rbpf<N> {
-    /// A filter with the SOGs filter's configuration and the default particle
-    /// parameters drawn from `seed`, or `InvalidConfig`.
-    pub fn new(config: SogConfig, seed: u64) -> Result<Self, EstimateError> {
-        Self::with_params(config, ParticleConfig::seeded(seed))
+impl ParticleModel for RaoBlackwell {
+    const RESAMPLE_AT_INIT: bool = true;
+    type Extra = [f32; 6];
+    type Prior = Prior;
+
+    /// `σ_m = m_max/√3`, so `E|m|² = m_max²`.
+    fn prior(config: &SogConfig, _z: &Vec3, r_var: f32, _n: usize) -> Prior {
+        let sigma_m = config.m_max * MOMENT_SCALE / libm::sqrtf(3.0);
+        Prior {
+            pm: Mat3::identity() * (sigma_m * sigma_m),
+            r_var,
+        }
     }
 
-    /// A filter with explicit particle parameters, or `InvalidConfig`.
-    pub fn with_params(config: SogConfig, params: ParticleConfig) -> Result<Self, EstimateError> {
-        config.validate()?;
-        params.validate()?;
-        if N < 2 {
-            return Err(EstimateError::InvalidConfig);
-        }
-        Ok(Self {
-            config,
-            params,
-            particles: Vec::new(),
-            rng: Prng::new(params.seed),
-            inconsistent_pulses: 0,
-            last_t: None,
-            resamples: 0,
-        })
-    }
-
-    /// Effective sample size of the current weights (IROS eq. 20).
-    pub fn n_eff(&self) -> f32 {
-        n_eff(&self.particles)
-    }
-
-    /// Number of resamplings so far.
-    pub fn resamples(&self) -> u32 {
-        self.resamples
-    }
-
-    fn exact(&self) -> bool {
-        self.config.mode == Mode::KnownTrajectory
-    }
-
-    /// Draws the particles and applies pulse `z` (µA/m in `R_1`) to their moment priors.
-    fn try_initialize(
-        &mut self,
-        attitude: &Attitude,
-        z: &Vec3,
-        outcome: StepOutcome,
-    ) -> StepReport {
-        self.particles.clear();
-        self.inconsistent_pulses = 0;
-        if !strong_enough(&self.config, z) {
-            return report(StepOutcome::Waiting, 0, 0.0);
-        }
-        let region = initial_region(&self.config, attitude, z);
-        if region.is_empty() {
-            return report(StepOutcome::Waiting, 0, 0.0);
-        }
-        let exact = self.exact();
-        let att_l = super::psd_factor(&((attitude.cov + attitude.cov.transpose()) * 0.5));
-        let r_var = noise_var(&self.config, z);
-        let sigma_m = self.config.m_max * MOMENT_SCALE / libm::sqrtf(3.0);
-        let prior = Mat3::identity() * (sigma_m * sigma_m);
-        let mut tries = 0;
-        while !self.particles.is_full() && tries < 4 * N {
-            tries += 1;
-            let Some(p) = sample_region(&region, &mut self.rng) else {
-                continue;
-            };
-            let psi = if exact {
-                attitude.rpy
-            } else {
-                attitude.rpy + att_l * gauss3(&mut self.rng)
-            };
-            let s = if exact {
-                1.0
-            } else {
-                1.0 + self.config.scale_sigma * self.rng.gauss()
-            };
-            let Some(h) = moment_jacobian(&rotation_from_rpy(&psi), &p) else {
-                continue;
-            };
-            let Some(u) = moment_update(&Vec3::zeros(), &prior, &h, z, r_var) else {
-                continue;
-            };
-            let _ = self.particles.push(Particle {
-                psi,
-                p,
-                s,
-                m: u.m,
-                pm: pack3(&u.pm),
-                log_w: u.log_lik,
-            });
-        }
-        if normalize(&mut self.particles).is_none() {
-            self.particles.clear();
-        }
-        let n = self.particles.len();
-        if n > 0 && self.n_eff() < self.params.resample_fraction * n as f32 {
-            self.resample();
-        }
-        let outcome = if n > 0 { outcome } else { StepOutcome::Waiting };
-        report(outcome, n, 0.0)
-    }
-
-    /// Systematic resampling, then roughening of the positions (the moments keep their
-    /// Kalman filters).
-    fn resample(&mut self) {
-        let u0 = self.rng.uniform();
-        systematic_resample(&mut self.particles, u0);
-        let k = self.params.roughen;
-        if k > 0.0 {
-            for q in self.particles.iter_mut() {
-                let jp = gauss3(&mut self.rng) * (k * q.p.norm());
-                q.p += jp;
-            }
-        }
-        self.resamples = self.resamples.saturating_add(1);
-    }
-}
-
-fn report(outcome: StepOutcome, n: usize, best_d2: f32) -> StepReport {
-    StepReport {
-        outcome,
-        n_components: n,
-        best_d2,
-        pruned: 0,
-        merged: 0,
-        split: 0,
-        dropped: 0,
-    }
-}
-
-impl<const N: usize> Estimator for Rbpf<N> {
-    fn step(
-        &mut self,
-        motion: &Displacement,
-        attitude: &Attitude,
-        pulse: &Pulse,
-    ) -> Result<StepReport, EstimateError> {
-        check_inputs(&self.config, self.last_t, motion, attitude, pulse)?;
-        self.last_t = Some(pulse.t);
-        let z = pulse.h * FIELD_SCALE;
-        if self.particles.is_empty() {
-            return Ok(self.try_initialize(attitude, &z, StepOutcome::Initialized));
-        }
-        let exact = self.exact();
-        let noise = MotionNoise::new(motion, exact);
-        let r_var = noise_var(&self.config, &z);
-        let att = if exact {
-            None
-        } else {
-            attitude_whitener(attitude)
-        };
-        let mut best_d2 = f32::INFINITY;
-        let mut dropped = 0u16;
-        for q in self.particles.iter_mut() {
-            let d = noise.sample(&mut self.rng);
-            let (psi, p, rot) = compose_pose(&q.psi, &q.p, q.s, &d);
-            q.psi = psi;
-            q.p = p;
-            let updated = moment_jacobian(&rot, &p)
-                .and_then(|h| moment_update(&q.m, &unpack3(&q.pm), &h, &z, r_var));
-            match updated {
-                Some(u) => {
-                    best_d2 = best_d2.min(u.d2);
-                    let la = att.map_or(0.0, |l| attitude_log_lik(&psi, &attitude.rpy, &l));
-                    q.m = u.m;
-                    q.pm = pack3(&u.pm);
-                    q.log_w += u.log_lik + la;
-                }
-                None => {
-                    q.log_w = LOG_ZERO;
-                    dropped += 1;
-                }
-            }
-        }
-        if best_d2 > self.config.divergence_d2 {
-            self.inconsistent_pulses = self.inconsistent_pulses.saturating_add(1);
-        } else {
-            self.inconsistent_pulses = 0;
-        }
-        if normalize(&mut self.particles).is_none()
-            || self.inconsistent_pulses >= self.config.divergence_pulses
-        {
-            let mut r = self.try_initialize(attitude, &z, StepOutcome::Reinitialized);
-            r.best_d2 = best_d2;
-            r.dropped = dropped;
-            return Ok(r);
-        }
-        if self.n_eff() < self.params.resample_fraction * self.particles.len() as f32 {
-            self.resample();
-        }
-        let mut r = report(StepOutcome::Updated, self.particles.len(), best_d2);
-        r.dropped = dropped;
-        Ok(r)
-    }
-
-    fn estimate(&self) -> Option<VictimEstimate> {
-        let best = self
-            .particles
-            .iter()
-            .max_by(|a, b| a.log_w.total_cmp(&b.log_w))?;
-        let items = self.particles.iter().map(|q| (libm::expf(q.log_w), q.p));
-        let (p, cov) = weighted_moments(items);
-        let mut moment = Vec3::zeros();
-        let (mut scale, mut scale2) = (0.0f32, 0.0f32);
-        for q in self.particles.iter() {
-            let w = libm::expf(q.log_w);
-            let sign = if q.m.dot(&best.m) < 0.0 { -1.0 } else { 1.0 };
-            moment += q.m * (w * sign);
-            scale += w * q.s;
-            scale2 += w * q.s * q.s;
-        }
-        Some(VictimEstimate {
+    /// The first pulse is the first Kalman update of the moment's prior `N(0, σ_m² I)`;
+    /// its marginal likelihood is the particle's initial weight.
+    fn draw(prior: &Prior, pose: (Rpy, Vec3, f32), z: &Vec3, _rng: &mut Prng) -> Option<Particle> {
+        let (psi, p, s) = pose;
+        let h = moment_jacobian(&rotation_from_rpy(&psi), &p)?;
+        let u = moment_update(&Vec3::zeros(), &prior.pm, &h, z, prior.r_var)?;
+        Some(Particle {
+            psi,
             p,
-            cov,
-            moment: moment / MOMENT_SCALE,
-            scale,
-            scale_sigma: libm::sqrtf((scale2 - scale * scale).max(0.0)),
-            rpy: best.psi,
-            n_components: self.particles.len(),
-            max_weight: libm::expf(best.log_w),
+            m: u.m,
+            s,
+            log_w: u.log_lik,
+            extra: pack3(&u.pm),
         })
     }
 
-    fn reset(&mut self) {
-        self.particles.clear();
-        self.inconsistent_pulses = 0;
-        self.last_t = None;
+    /// The moment's Kalman update with the pulse; the weight is its marginal likelihood.
+    fn weigh(q: &mut Particle, rot: &Mat3, z: &Vec3, r_var: f32) -> Option<(f32, f32)> {
+        let u = moment_jacobian(rot, &q.p)
+            .and_then(|h| moment_update(&q.m, &unpack3(&q.extra), &h, z, r_var))?;
+        q.m = u.m;
+        q.extra = pack3(&u.pm);
+        Some((u.d2, u.log_lik))
     }
 
-    fn is_initialized(&self) -> bool {
-        !self.particles.is_empty()
+    /// Roughens the position only (the moments keep their Kalman filters).
+    fn roughen(q: &mut Particle, rng: &mut Prng, k: f32) {
+        let jp = gauss3(rng) * (k * q.p.norm());
+        q.p += jp;
     }
 }
+
+particle_filter!(
+    /// Rao-Blackwellized particle filter with room for `N` particles (no heap).
+    Rbpf,
+    RaoBlackwell
+);
