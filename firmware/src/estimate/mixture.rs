@@ -145,7 +145,9 @@ impl MergeKey {
 /// All pairs are visited in the same order as a plain double loop, but the cheap
 /// rejection runs on a compact copy of the positions and traces ([`MergeKey`]), kept in
 /// step with the mixture through every merge and `swap_remove`: the result is the same,
-/// at ≈ 10 instructions per rejected pair.
+/// at ≈ 10 instructions per rejected pair. Never inlined: its key buffer then lives on
+/// the stack only while it runs, not in the whole step's frame.
+#[inline(never)]
 pub(crate) fn merge<const N: usize>(comps: &mut Vec<Component, N>, max_d2: f32) -> u16 {
     let mut keys: Vec<MergeKey, N> = comps.iter().map(MergeKey::of).collect();
     let mut merged = 0u16;
@@ -243,7 +245,8 @@ const SPLIT_MU: [f32; 3] = [-1.057_515_5, 0.0, 1.057_515_5];
 /// carried to the whole state through the covariance (so the correlated moment moves
 /// with the position). The free capacity goes to the heaviest candidates first (they
 /// carry the estimate); the rest wait for later pulses. Returns the number of
-/// components split.
+/// components split. Never inlined (its buffer stays out of the step's frame).
+#[inline(never)]
 pub(crate) fn split<const N: usize>(
     comps: &mut Vec<Component, N>,
     ratio: f32,
