@@ -248,7 +248,21 @@ pub(crate) fn step_component(
             return Ok(out);
         }
     }
-    step_component_joseph(inp, x, p, attitude)
+    step_component_joseph(inp, x, p, attitude).and_then(positive_variances)
+}
+
+/// Refuses a component whose covariance lost a variance's sign to `f32` rounding (a
+/// prior far wider than the attitude measurement, e.g. σ of radians against µrad): even
+/// the Joseph form cannot repair a prior that was already not PSD.
+fn positive_variances<T>(
+    out: (StateVec, StateMat, T),
+) -> Result<(StateVec, StateMat, T), ComponentFailure> {
+    // ≥ 0, not > 0: the known-trajectory mode pins the attitude with zero variance.
+    if (0..NX).all(|i| out.1[(i, i)] >= 0.0) {
+        Ok(out)
+    } else {
+        Err(ComponentFailure::NotPositiveDefinite)
+    }
 }
 
 /// [`step_component`] in the Joseph form (the rare fallback, kept out of line).
@@ -317,13 +331,14 @@ pub(crate) fn predict_component(
     let mut p1 = j.apply_fx(&fp) + j.apply_fu(&fq);
     p1 = (p1 + p1.transpose()) * 0.5;
     let x1 = finish(x1, &p1, 0.0)?;
-    let Some((z, r)) = attitude else {
-        return Ok((x1, p1));
+    let out = match attitude {
+        None => (x1, p1),
+        Some((z, r)) => match attitude_update(&x1, &p1, z, r) {
+            Ok(out) if well_conditioned(&out.1) => out,
+            _ => attitude_update_joseph(&x1, &p1, z, r)?,
+        },
     };
-    match attitude_update(&x1, &p1, z, r) {
-        Ok(out) if well_conditioned(&out.1) => Ok(out),
-        _ => attitude_update_joseph(&x1, &p1, z, r),
-    }
+    positive_variances((out.0, out.1, ())).map(|(x, p, ())| (x, p))
 }
 
 /// `a − v vᵀ`, symmetric by construction (upper triangle computed, then mirrored).
