@@ -984,6 +984,29 @@ mod tests {
     }
 
     #[test]
+    fn strongest_overlap_picks_the_loudest_intersecting_one_and_its_share() {
+        let tx = |phase_s: f64, moment: f64| Transmitter {
+            position: [0.0; 3],
+            moment: [0.0, 0.0, moment],
+            carrier_hz: CARRIER_HZ,
+            period_s: 1.0,
+            on_time_s: 0.1,
+            phase_s,
+        };
+        // Own pulse on [3.2, 3.3]; #1 on [3.25, 3.35] (half covered), #2 on [3.5, 3.6].
+        let txs = [tx(0.2, 1.0), tx(0.25, 2.0), tx(0.5, 9.0)];
+        assert!((overlap_len(&txs[1], 3.2, 3.3) - 0.05).abs() < 1e-12);
+        assert_eq!(overlap_len(&txs[2], 3.2, 3.3), 0.0);
+        // "Field" = the moment, so the loudest is #2 — but it does not intersect.
+        let heard = |t: &Transmitter| Some(V3::from(t.moment));
+        let (h, share) = strongest_overlap(&txs, 0, 3.2, &heard).unwrap();
+        assert_eq!(h, V3::new(0.0, 0.0, 2.0));
+        assert!((share - 0.5).abs() < 1e-9, "{share}");
+        // Not heard: no interferer.
+        assert!(strongest_overlap(&txs, 0, 3.2, &|_: &Transmitter| None).is_none());
+    }
+
+    #[test]
     fn an_overlapping_close_pair_is_separated_and_both_are_found() {
         let o = run(&MultiConfig::new(12, 2, Layout::ClosePairOverlap)).unwrap();
         assert_eq!(o.victims.len(), 2);
