@@ -53,6 +53,7 @@ mod analysis;
 mod calibration;
 mod complex;
 mod config;
+mod dominance;
 mod fft;
 mod pulse;
 mod tracker;
@@ -63,6 +64,7 @@ mod tests;
 pub use calibration::Calibration;
 pub use complex::C32;
 pub use config::{FrontendConfig, FrontendError};
+pub use dominance::{DOMINANCE_RATIO, DominanceError, OverlapVerdict, overlap_verdict};
 pub use pulse::{Pulse, PulseMeasurement};
 pub use tracker::{
     DORMANT_S, ESTABLISHED_HITS, MAX_TRACKS, PERIOD_MAX_S, PERIOD_MIN_S, Track, TransmitterTracker,
