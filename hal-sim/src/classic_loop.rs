@@ -15,8 +15,8 @@
 //! `hal-sim classic-report --tries N` runs seeds 1..=N (the scenarios of `rescue-report`)
 //! and writes a markdown report beside the numbers of `hal-sim/reports/rescue.md`.
 use crate::closed_loop::{
-    CROSS_HEIGHT_M, ClosedLoopConfig, DT, HOLD_HEIGHT_M, Person, Pose, StartMode, draw_scenario,
-    gauss, imu_sample, start_rescuer, walk_primary,
+    CROSS_HEIGHT_M, ClosedLoopConfig, DT, HOLD_HEIGHT_M, Person, PoseWindow, StartMode,
+    draw_scenario, gauss, imu_sample, start_rescuer, walk_primary,
 };
 use crate::physics::{M3, V3, rotation_from_rpy};
 use crate::receiver_config::ReceiverConfig;
@@ -113,7 +113,12 @@ pub fn run(seed: u64) -> anyhow::Result<ClassicOutcome> {
     let mut classic = ClassicSearch::new(classic_cfg)
         .map_err(|e| anyhow::anyhow!("classic mode refused its config: {e:?}"))?;
     // The rescuer as in closed_loop::run (same draws in the same order).
-    let (bias, mut person) = start_rescuer(&sc, imu_noise.gyr_bias_max_rad_s, &mut rng);
+    let (bias, mut person) = start_rescuer(
+        &sc.start,
+        sc.heading,
+        imu_noise.gyr_bias_max_rad_s,
+        &mut rng,
+    );
     let tx_p = V3::from(sc.tx.position);
     let ideal = (tx_p - sc.start).xy().norm();
     let max_path = cfg.max_path_factor * ideal + 20.0;
@@ -124,11 +129,10 @@ pub fn run(seed: u64) -> anyhow::Result<ClassicOutcome> {
     let mut heading_err = sigma_heading * gauss(&mut rng);
     let lag_ticks = (cfg.lag_s / DT).round().max(0.0) as usize;
 
-    let mut poses: VecDeque<Pose> = VecDeque::with_capacity(3);
+    let mut window = PoseWindow::default();
     let mut seen: VecDeque<Seen> = VecDeque::with_capacity(lag_ticks + 2);
     let mut hand = Hand::default();
     let mut first_rx: Option<(V3, u64)> = None;
-    let mut path_m = 0.0;
     let mut next_pulse = 0u64;
     let mut probe_pulse = None;
     let (mut turn_arounds, mut returned, mut fine) = (0u32, false, false);
@@ -136,7 +140,7 @@ pub fn run(seed: u64) -> anyhow::Result<ClassicOutcome> {
     let max_t = 3.0 * max_path / walk_speed + 60.0;
     let mut k: u64 = 0;
     let mut t = 0.0;
-    while t < max_t && path_m < max_path {
+    while t < max_t && window.path_m < max_path {
         person.advance(&cfg);
         if let Some(t0) = hand.lower_t0 {
             // Raised-cosine lowering to the cross-search height.
@@ -146,18 +150,9 @@ pub fn run(seed: u64) -> anyhow::Result<ClassicOutcome> {
         }
         k += 1;
         t = k as f64 * DT;
-        let pose = person.pose(t);
-        if let Some(prev) = poses.back() {
-            path_m += (pose.p - prev.p).xy().norm();
-        }
-        poses.push_back(pose);
-        if poses.len() > 3 {
-            poses.pop_front();
-        }
-        let (Some(p0), Some(p1), Some(p2)) = (poses.front(), poses.get(1), poses.get(2)) else {
+        let Some((p0, p1, p2)) = window.push(person.pose(t)) else {
             continue;
         };
-        let (p0, p1, p2) = (*p0, *p1, *p2);
         let (acc, gyr, mag) = imu_sample(&mut rng, &imu_noise, &bias, &earth, [&p0, &p1, &p2]);
         let _ = motion.on_imu_sample(p1.t as f32, &acc, &gyr, Some(&mag));
         let centre = sc.tx.phase_s + next_pulse as f64 * sc.tx.period_s + 0.5 * sc.tx.on_time_s;
@@ -217,7 +212,7 @@ pub fn run(seed: u64) -> anyhow::Result<ClassicOutcome> {
             act(&mut person, &mut hand, &view, heading_err, p1.t);
         }
     }
-    let end = poses.back().map_or(sc.start, |p| p.p);
+    let end = window.last().map_or(sc.start, |p| p.p);
     let first_d = first_rx.map(|(p, _)| (tx_p - p).xy().norm());
     let ideal_steps = first_d.map(ideal_pulses);
     let steps = probe_pulse

@@ -253,10 +253,11 @@ impl Outcome {
     }
 }
 
-/// The gyro bias and the rescuer standing at the scenario's start, drawn from `rng` in this
-/// order (every closed loop draws them alike, so one seed gives one rescuer).
+/// The gyro bias and the rescuer standing at `start` facing `heading` (rad), drawn from
+/// `rng` in this order (every closed loop draws them alike, so one seed gives one rescuer).
 pub(crate) fn start_rescuer(
-    sc: &Scenario,
+    start: &V3,
+    heading: f64,
     gyr_bias_max: f64,
     rng: &mut ChaCha8Rng,
 ) -> (V3, Person) {
@@ -266,17 +267,17 @@ pub(crate) fn start_rescuer(
         rng.random_range(-gyr_bias_max..=gyr_bias_max),
     );
     let torso = [
-        sc.start.x - HOLD_OFFSET_M[0] * sc.heading.cos() + HOLD_OFFSET_M[1] * sc.heading.sin(),
-        sc.start.y - HOLD_OFFSET_M[0] * sc.heading.sin() - HOLD_OFFSET_M[1] * sc.heading.cos(),
+        start.x - HOLD_OFFSET_M[0] * heading.cos() + HOLD_OFFSET_M[1] * heading.sin(),
+        start.y - HOLD_OFFSET_M[0] * heading.sin() - HOLD_OFFSET_M[1] * heading.cos(),
     ];
     let person = Person {
         c: torso,
-        psi: sc.heading,
+        psi: heading,
         psi_dot: 0.0,
         w: 0.0,
         w_target: 0.0,
         phase: 0.0,
-        psi_des: sc.heading,
+        psi_des: heading,
         wobble: [
             Wobble::random(rng, 0.035, 0.1, 1.0),
             Wobble::random(rng, 0.035, 0.1, 1.0),
@@ -361,6 +362,42 @@ pub(crate) fn draw_scenario(
         start,
         heading,
         step_cal,
+    }
+}
+
+/// The last three poses of the walk (an IMU sample of the middle tick needs both
+/// neighbours) and the horizontal path walked so far.
+#[derive(Debug, Default)]
+pub(crate) struct PoseWindow {
+    poses: VecDeque<Pose>,
+    /// Horizontal path walked, m.
+    pub(crate) path_m: f64,
+}
+
+impl PoseWindow {
+    /// Adds the tick's pose; returns the three latest once there are three.
+    pub(crate) fn push(&mut self, pose: Pose) -> Option<(Pose, Pose, Pose)> {
+        if let Some(prev) = self.poses.back() {
+            self.path_m += (pose.p - prev.p).xy().norm();
+        }
+        self.poses.push_back(pose);
+        if self.poses.len() > 3 {
+            self.poses.pop_front();
+        }
+        match (self.poses.front(), self.poses.get(1), self.poses.get(2)) {
+            (Some(&p0), Some(&p1), Some(&p2)) => Some((p0, p1, p2)),
+            _ => None,
+        }
+    }
+
+    /// The latest pose.
+    pub(crate) fn last(&self) -> Option<&Pose> {
+        self.poses.back()
+    }
+
+    /// The middle pose (the tick whose IMU sample was last produced).
+    pub(crate) fn middle(&self) -> Option<&Pose> {
+        self.poses.get(1)
     }
 }
 
@@ -545,7 +582,12 @@ pub fn run(
     let mut rx = Box::new(
         Receiver::new(app).map_err(|e| anyhow::anyhow!("receiver refused its config: {e:?}"))?,
     );
-    let (bias, mut person) = start_rescuer(&sc, imu_noise.gyr_bias_max_rad_s, &mut rng);
+    let (bias, mut person) = start_rescuer(
+        &sc.start,
+        sc.heading,
+        imu_noise.gyr_bias_max_rad_s,
+        &mut rng,
+    );
     let primary = (cfg.start == StartMode::PrimarySearch).then_some(sc.heading);
     let mut ds = Directional::default();
     let mut first_rx: Option<(f64, V3, u64, f64)> = None;
@@ -558,13 +600,12 @@ pub fn run(
     let mut heading_err = sigma_heading * gauss(&mut rng);
     let lag_ticks = (cfg.lag_s / DT).round().max(0.0) as usize;
 
-    let mut poses: VecDeque<Pose> = VecDeque::with_capacity(3);
+    let mut window = PoseWindow::default();
     let mut seen: VecDeque<Seen> = VecDeque::with_capacity(lag_ticks + 2);
     let mut plan = StepPlan::default();
     let mut rows = Vec::new();
     let mut snapshots: Vec<Snapshot> = Vec::new();
     let mut track = Vec::new();
-    let mut path_m = 0.0;
     let mut next_pulse = 0u64;
     let mut probe_t = None;
     let mut last_status = Status::NoSignal;
@@ -572,22 +613,13 @@ pub fn run(
     let max_t = 3.0 * max_path / (cfg.step_length_m * cfg.cadence_hz) + 60.0;
     let mut t = 0.0;
     let mut k: u64 = 0;
-    while t < max_t && path_m < max_path {
+    while t < max_t && window.path_m < max_path {
         person.advance(cfg);
         k += 1;
         t = k as f64 * DT;
-        let pose = person.pose(t);
-        if let Some(prev) = poses.back() {
-            path_m += (pose.p - prev.p).xy().norm();
-        }
-        poses.push_back(pose);
-        if poses.len() > 3 {
-            poses.pop_front();
-        }
-        if poses.len() < 3 {
+        let Some((p0, p1, p2)) = window.push(person.pose(t)) else {
             continue;
-        }
-        let (p0, p1, p2) = (poses[0], poses[1], poses[2]);
+        };
         // The IMU sample of the middle tick.
         let (acc, gyr, mag) = imu_sample(&mut rng, &imu_noise, &bias, &earth, [&p0, &p1, &p2]);
         let _ = rx.on_imu(p1.t as f32, &acc, &gyr, Some(&mag));
@@ -603,7 +635,7 @@ pub fn run(
                 && h_w.norm() >= 3.0 * pulse_noise.sigma_bkg_a_per_m
             {
                 if first_rx.is_none() {
-                    first_rx = Some((centre, p1.p, next_pulse - 1, path_m));
+                    first_rx = Some((centre, p1.p, next_pulse - 1, window.path_m));
                 }
                 let sigma = pulse_noise
                     .sigma_bkg_a_per_m
@@ -633,7 +665,7 @@ pub fn run(
                         victim_est,
                         error_h_m: victim_est.map(|v| (V3::from(v) - tx_p).xy().norm()),
                         true_distance_m: (tx_p - p1.p).norm(),
-                        path_m,
+                        path_m: window.path_m,
                         n_components: rx.filter().len(),
                         true_rpy: p1.rpy.into(),
                         displacement_sigma_h_m: f64::from(d.cov[(0, 0)] + d.cov[(1, 1)]).sqrt(),
@@ -695,7 +727,7 @@ pub fn run(
             act(cfg, &mut person, &mut plan, &view, heading_err, p1.t);
         }
     }
-    let end = poses.back().map_or(sc.start, |p| p.p);
+    let end = window.last().map_or(sc.start, |p| p.p);
     if let Some(r) = rows.last()
         && rx.estimate().is_some()
     {
@@ -703,7 +735,7 @@ pub fn run(
     }
     let final_est = match cfg.policy {
         Policy::Receiver => rx.estimate().map(|e| {
-            let rx_p = poses.get(1).map_or(end, |p| p.p);
+            let rx_p = window.middle().map_or(end, |p| p.p);
             rx_p + V3::new(f64::from(e.p.x), f64::from(e.p.y), f64::from(e.p.z))
         }),
         // The classical search's estimate is where it found the maximum.
@@ -718,7 +750,7 @@ pub fn run(
         victim: sc.tx.position,
         start: sc.start.into(),
         ideal_path_m: ideal,
-        path_m,
+        path_m: window.path_m,
         probe_t,
         end_t: t,
         error_h_m: final_est.map(|v| (v - tx_p).xy().norm()),
@@ -737,7 +769,7 @@ pub fn run(
         walk_speed_m_s: cfg.step_length_m * cfg.cadence_hz,
         first_rx_t: first_rx.map(|f| f.0),
         first_rx_p: first_rx.map(|f| f.1.into()),
-        path_at_first_rx_m: first_rx.map_or(path_m, |f| f.3),
+        path_at_first_rx_m: first_rx.map_or(window.path_m, |f| f.3),
         pulses_to_probe: pulses_at_probe
             .zip(first_rx)
             .map(|(n, f)| n.saturating_sub(f.2)),

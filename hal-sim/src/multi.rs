@@ -29,12 +29,11 @@
 //! a **wrong-victim mark** (a duplicate of a found victim, or nothing there).
 use crate::accuracy::stats;
 use crate::closed_loop::{
-    ClosedLoopConfig, DT, HOLD_HEIGHT_M, HOLD_OFFSET_M, Person, Pose, Seen, StepPlan, act, gauss,
-    imu_sample,
+    ClosedLoopConfig, DT, HOLD_HEIGHT_M, PoseWindow, Seen, StepPlan, act, gauss, imu_sample,
+    start_rescuer,
 };
 use crate::physics::{V3, rotation_from_rpy};
 use crate::receiver_config::ReceiverConfig;
-use crate::rescuer::Wobble;
 use crate::sog_replay::sog_config;
 use crate::transmitter::{CARRIER_HZ, Transmitter, TransmitterSpec};
 use crate::world::earth_field_ut;
@@ -364,38 +363,19 @@ pub fn run_with(
         Receiver::new(app).map_err(|e| anyhow::anyhow!("receiver refused its config: {e:?}"))?,
     );
     let mut tracker = TransmitterTracker::new();
-    let bias_max = imu_noise.gyr_bias_max_rad_s;
-    let bias = V3::new(
-        rng.random_range(-bias_max..=bias_max),
-        rng.random_range(-bias_max..=bias_max),
-        rng.random_range(-bias_max..=bias_max),
+    let (bias, mut person) = start_rescuer(
+        &sc.start,
+        sc.heading,
+        imu_noise.gyr_bias_max_rad_s,
+        &mut rng,
     );
-    let (s, c) = sc.heading.sin_cos();
-    let [f, l] = HOLD_OFFSET_M;
-    let mut person = Person {
-        c: [sc.start.x - (f * c - l * s), sc.start.y - (f * s + l * c)],
-        psi: sc.heading,
-        psi_dot: 0.0,
-        w: 0.0,
-        w_target: 0.0,
-        phase: 0.0,
-        psi_des: sc.heading,
-        wobble: [
-            Wobble::random(&mut rng, 0.035, 0.1, 1.0),
-            Wobble::random(&mut rng, 0.035, 0.1, 1.0),
-            Wobble::random(&mut rng, 0.07, 0.05, 0.5),
-        ],
-        hold_height: HOLD_HEIGHT_M,
-        crawl_to: None,
-        lift_t0: None,
-    };
     let sigma_heading = rc.heading_noise_deg.to_radians();
     let ar = (-DT / 2.0f64).exp();
     let mut heading_err = sigma_heading * gauss(&mut rng);
     let lag_ticks = (rc.lag_s / DT).round().max(0.0) as usize;
     let mut tally = vec![Tally::default(); sc.txs.len()];
     // Which true victim each receiver slot's pulses came from (counts).
-    let mut poses: VecDeque<Pose> = VecDeque::with_capacity(3);
+    let mut window = PoseWindow::default();
     let mut seen: VecDeque<Seen> = VecDeque::with_capacity(lag_ticks + 2);
     let mut plan = StepPlan::default();
     let mut marks: Vec<MarkEvent> = Vec::new();
@@ -404,7 +384,6 @@ pub fn run_with(
     let mut idle_since: Option<f64> = None;
     let mut first_t: Option<f64> = None;
     let mut list_max = 0u8;
-    let mut path_m = 0.0;
     let max_t = max_time_s(sc.txs.len());
     let mut t = 0.0;
     let mut k: u64 = 0;
@@ -412,18 +391,9 @@ pub fn run_with(
         person.advance(rc);
         k += 1;
         t = k as f64 * DT;
-        let pose = person.pose(t);
-        if let Some(prev) = poses.back() {
-            path_m += (pose.p - prev.p).xy().norm();
-        }
-        poses.push_back(pose);
-        if poses.len() > 3 {
-            poses.pop_front();
-        }
-        if poses.len() < 3 {
+        let Some((p0, p1, p2)) = window.push(person.pose(t)) else {
             continue;
-        }
-        let (p0, p1, p2) = (poses[0], poses[1], poses[2]);
+        };
         let (acc, gyr, mag) = imu_sample(&mut rng, &imu_noise, &bias, &earth, [&p0, &p1, &p2]);
         let _ = rx.on_imu(p1.t as f32, &acc, &gyr, Some(&mag));
         let heard = |tx: &Transmitter| {
@@ -585,7 +555,7 @@ pub fn run_with(
         victims,
         marks,
         time_to_all_s,
-        path_m,
+        path_m: window.path_m,
         list_max,
         refused: stats.pulses_refused,
         other_source: stats.other_source,
