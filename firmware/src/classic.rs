@@ -269,7 +269,12 @@ impl ClassicSearch {
         if !cfg.is_valid() {
             return Err(ClassicError::BadConfig);
         }
-        Ok(Self {
+        Ok(Self::waiting(cfg))
+    }
+
+    /// The state before the first pulse, for a configuration already checked.
+    fn waiting(cfg: ClassicConfig) -> Self {
+        Self {
             cfg,
             phase: Phase::Secondary,
             bearing: None,
@@ -281,7 +286,7 @@ impl ClassicSearch {
             last_t: None,
             pulses: 0,
             out: ClassicOutput::default(),
-        })
+        }
     }
 
     /// The configuration in use.
@@ -301,20 +306,7 @@ impl ClassicSearch {
 
     /// Back to the start (a new search).
     pub fn reset(&mut self) {
-        let cfg = self.cfg;
-        *self = Self {
-            cfg,
-            phase: Phase::Secondary,
-            bearing: None,
-            flux_acc: [0.0; 2],
-            recent: [0.0; SMOOTH_PULSES],
-            n_recent: 0,
-            best_h: 0.0,
-            since_best_m: 0.0,
-            last_t: None,
-            pulses: 0,
-            out: ClassicOutput::default(),
-        };
+        *self = Self::waiting(self.cfg);
     }
 
     /// One received pulse: its field in the body frame (sign arbitrary), the attitude at

@@ -231,21 +231,28 @@ fn route(
     }
 }
 
+/// Draws a rescuer's gait and how they hold the receiver (step length 0.50–0.62 m, cadence
+/// 1.7–1.9 Hz, 0.9–1.1 m above the snow, pitched 0–0.25 rad).
+pub(crate) fn draw_person(rng: &mut ChaCha8Rng) -> (GaitParams, HoldParams) {
+    let gait = GaitParams {
+        step_length_m: quantize(rng.random_range(0.50..=0.62), 1e3),
+        cadence_hz: quantize(rng.random_range(1.7..=1.9), 1e3),
+        ..GaitParams::default()
+    };
+    let hold = HoldParams {
+        height_m: quantize(rng.random_range(0.9..=1.1), 1e3),
+        pitch_rad: quantize(rng.random_range(0.0..=0.25), 1e3),
+        ..HoldParams::default()
+    };
+    (gait, hold)
+}
+
 /// Draws and simulates a scenario.
 pub fn simulate(cfg: &ScenarioConfig) -> Simulation {
     let mut rng_world = stream(cfg.seed, 0);
     let mut rng_person = stream(cfg.seed, 1);
     let transmitters = place_transmitters(cfg, &mut rng_world);
-    let gait = GaitParams {
-        step_length_m: quantize(rng_person.random_range(0.50..=0.62), 1e3),
-        cadence_hz: quantize(rng_person.random_range(1.7..=1.9), 1e3),
-        ..GaitParams::default()
-    };
-    let hold = HoldParams {
-        height_m: quantize(rng_person.random_range(0.9..=1.1), 1e3),
-        pitch_rad: quantize(rng_person.random_range(0.0..=0.25), 1e3),
-        ..HoldParams::default()
-    };
+    let (gait, hold) = draw_person(&mut rng_person);
     let waypoints = match transmitters.first() {
         Some(tx) => route(cfg, &mut rng_world, tx, &hold),
         None => Vec::new(),
@@ -363,7 +370,7 @@ pub fn simulate(cfg: &ScenarioConfig) -> Simulation {
 
 /// Merges time-sorted IMU samples and pulses into one time-sorted record stream (an IMU
 /// sample goes first at equal times).
-fn merge(imu: Vec<Imu>, pulses: Vec<Pulse>) -> Vec<Record> {
+pub(crate) fn merge(imu: Vec<Imu>, pulses: Vec<Pulse>) -> Vec<Record> {
     let mut out = Vec::with_capacity(imu.len() + pulses.len());
     let mut p = pulses.into_iter().peekable();
     for s in imu {

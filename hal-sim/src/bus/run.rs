@@ -17,7 +17,7 @@ use super::imu::{ImuBus, ImuSampler};
 use super::{NoDelay, SimClock};
 use crate::physics::V3;
 use crate::rescuer::wrap_pi;
-use crate::scenario::{ScenarioConfig, Simulation, simulate};
+use crate::scenario::{ScenarioConfig, Simulation, merge, simulate};
 use crate::sensors::{ImuModel, quantize, round_significant};
 use crate::session::{Imu, Pulse, Record, Session, Truth, TruthVictim};
 use crate::world::World;
@@ -180,20 +180,6 @@ fn truth_records(world: &World, hz: f64, duration: f64, pulses: &[Pulse]) -> Vec
             })
         })
         .collect()
-}
-
-/// Merges time-sorted IMU samples and pulses (an IMU sample first at equal times).
-fn merge(imu: Vec<Imu>, pulses: Vec<Pulse>) -> Vec<Record> {
-    let mut out = Vec::with_capacity(imu.len() + pulses.len());
-    let mut p = pulses.into_iter().peekable();
-    for s in imu {
-        while let Some(x) = p.next_if(|x| x.t < s.t) {
-            out.push(Record::Pulse(x));
-        }
-        out.push(Record::Imu(s));
-    }
-    out.extend(p.map(Record::Pulse));
-    out
 }
 
 /// One measurement-level pulse and the bus-level pulse matched to it.

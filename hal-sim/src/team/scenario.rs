@@ -10,8 +10,8 @@
 //! - each rescuer's start is known only from a GNSS fix with σ = `start_fix_sigma_m`
 //!   (`starts.json`, the only shared input besides the logs).
 use crate::receiver_config::{Pdr, ReceiverConfig};
-use crate::rescuer::{GaitParams, HoldParams, Plan, Rescuer, Waypoint, wrap_pi};
-use crate::scenario::stream;
+use crate::rescuer::{GaitParams, Plan, Rescuer, Waypoint, wrap_pi};
+use crate::scenario::{draw_person, merge, stream};
 use crate::sensors::{ImuModel, PulseModel, SensorConfig, quantize, round_significant};
 use crate::session::{Header, Imu, Pulse, Record, Session, Truth, TruthVictim};
 use crate::transmitter::{Transmitter, TransmitterSpec};
@@ -182,20 +182,6 @@ fn route(start: [f64; 2], targets: &[[f64; 2]], rng: &mut ChaCha8Rng) -> Vec<Way
     out
 }
 
-/// Merges time-sorted IMU samples and pulses (an IMU sample first at equal times).
-fn merge(imu: Vec<Imu>, pulses: Vec<Pulse>) -> Vec<Record> {
-    let mut out = Vec::with_capacity(imu.len() + pulses.len());
-    let mut p = pulses.into_iter().peekable();
-    for s in imu {
-        while let Some(x) = p.next_if(|x| x.t < s.t) {
-            out.push(Record::Pulse(x));
-        }
-        out.push(Record::Imu(s));
-    }
-    out.extend(p.map(Record::Pulse));
-    out
-}
-
 /// A receiver's clock: `t_log = epoch_s + t (1 + rate_ppm·1e-6)`, at 10 µs resolution.
 #[derive(Debug, Clone, Copy)]
 struct Clock {
@@ -243,16 +229,7 @@ fn walker(
     } else {
         route(start, &targets, rng)
     };
-    let gait = GaitParams {
-        step_length_m: quantize(rng.random_range(0.50..=0.62), 1e3),
-        cadence_hz: quantize(rng.random_range(1.7..=1.9), 1e3),
-        ..GaitParams::default()
-    };
-    let hold = HoldParams {
-        height_m: quantize(rng.random_range(0.9..=1.1), 1e3),
-        pitch_rad: quantize(rng.random_range(0.0..=0.25), 1e3),
-        ..HoldParams::default()
-    };
+    let (gait, hold) = draw_person(rng);
     let first = waypoints.first().map_or(start, |w| w.p);
     let plan = Plan {
         start,
