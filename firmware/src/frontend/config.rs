@@ -43,8 +43,8 @@ pub struct FrontendConfig {
     /// Blocks averaged to seed the noise floor before detection starts.
     pub warmup_blocks: usize,
     /// A pulse is flagged [`Overlap`](super::PulseMeasurement::Overlap) when the energy a
-    /// single constant-envelope carrier leaves unexplained exceeds this fraction of the
-    /// signal energy (beyond the noise allowance).
+    /// single carrier with a linearly drifting envelope leaves unexplained exceeds this
+    /// fraction of the signal energy (beyond the noise allowance).
     pub max_residual_fraction: f32,
     /// …or when the energy in quadrature to the coils' common phase exceeds this
     /// fraction of the in-phase energy (beyond the noise allowance).
@@ -66,8 +66,14 @@ impl Default for FrontendConfig {
             min_pulse_s: 0.05,
             floor_time_constant_s: 0.5,
             warmup_blocks: 32,
-            max_residual_fraction: 0.12,
-            max_quadrature_fraction: 0.05,
+            // An interferer leaves at least the square of its share of the vector error
+            // as residual energy (a partial overlap at a nearby carrier: error ρ·f,
+            // residual ≈ ρ²·f), so this keeps a pulse only where the interferer's error
+            // is ≤ the dominance ratio of the multi-victim rule (1 %, ICRA eq. 10).
+            max_residual_fraction: super::DOMINANCE_RATIO * super::DOMINANCE_RATIO,
+            // Same-carrier overlaps show only in quadrature; 1e-3 ≈ sin²(1.8°) leaves room
+            // for the channels' phase-calibration error on a real board.
+            max_quadrature_fraction: 1e-3,
             calibration: Calibration::default(),
         }
     }

@@ -36,10 +36,18 @@
 //! 5. The three complex amplitudes are rotated onto their common phase
 //!    `φ = ½ arg Σ c_i²`; the real parts are the field vector with correct relative
 //!    signs, the overall sign unknown (reported with the largest component positive).
-//! 6. A single transmitter leaves only noise after the fit of one constant-envelope
-//!    carrier and almost nothing in quadrature. Two overlapping transmitters break one
-//!    or the other, and the pulse is reported as [`PulseMeasurement::Overlap`] instead
-//!    of a wrong vector.
+//! 6. A single transmitter leaves only noise after the fit of one carrier whose
+//!    envelope may drift linearly (the receiver moves and turns during a pulse), once
+//!    the mixer's known image leakage is taken out, and almost nothing in quadrature.
+//!    Two overlapping transmitters break one or the other, and the pulse is reported as
+//!    [`PulseMeasurement::Overlap`] instead of a wrong vector: an interferer leaves at
+//!    least the square of its share of the vector error as residual energy, so a
+//!    residual above [`DOMINANCE_RATIO`]² of the signal (beyond the noise allowance)
+//!    withholds the pulse — a pulse is kept only when any other transmitter under it is
+//!    ≈ 40 dB weaker (the multi-victim rule of [`overlap_verdict`]). Weak pulses are
+//!    limited by the noise allowance instead (an interferer hidden in the noise of a
+//!    40 σ_bkg pulse can still shift its vector by ≈ 25 %; the estimator's χ² gate is
+//!    the defence there).
 //! 7. A [`TransmitterTracker`] attributes each pulse to a transmitter by its period
 //!    (1000 ± 300 ms) and carrier offset: the pulse's `src`.
 //!
