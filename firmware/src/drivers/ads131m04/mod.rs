@@ -7,8 +7,8 @@
 //! the coils' relative phases — which carry the field vector's relative signs — are
 //! preserved.
 //!
-//! The driver is generic over [`SpiDevice`] (SPI mode 1, up to 25 MHz; the device
-//! handles chip select) and [`InputPin`] (DRDY). No call blocks without bound and no
+//! The driver is generic over [`SpiDevice`](embedded_hal::spi::SpiDevice) (SPI mode 1, up to 25 MHz; the device
+//! handles chip select) and [`InputPin`](embedded_hal::digital::InputPin) (DRDY). No call blocks without bound and no
 //! call panics: every failure is an [`Error`] value.
 //!
 //! Capabilities:
