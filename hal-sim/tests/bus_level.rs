@@ -135,3 +135,65 @@ fn bus_imu_samples_match_measurement_samples() {
     let ts: Vec<f64> = run.sim.session.records.iter().map(Record::t).collect();
     assert!(ts.windows(2).all(|w| w[0] <= w[1]));
 }
+
+#[test]
+fn bus_level_never_reports_a_wrong_vector_under_overlaps() {
+    // Three beacons 5–30 m apart, the rescuer walks up to the first: its pulses grow to
+    // 1e-5…1e-4 A/m while the others' stay 20–50 dB weaker and overlap them now and then
+    // (periods 0.7–1.3 s, 70–150 ms on). Every vector the DSP gives must be one
+    // transmitter's field within the noise model (ICRA eq. 10) plus the ≤ 1 % (+ margin)
+    // of interference the dominance rule lets through; the rest must be flagged.
+    let (mut vectors, mut wrong, mut overlapped_strong, mut flagged) = (0, 0, 0, 0u32);
+    for seed in [1, 2, 3] {
+        let mut cfg = config(Preset::Paper, seed, 3, 60.0);
+        cfg.start_distance_m = [12.0, 20.0];
+        let run = simulate_bus_default(&cfg).unwrap();
+        let world = &run.sim.world;
+        let p = &cfg.sensors.pulse;
+        let n_tx = world.transmitters.len();
+        for pulse in run.sim.session.pulses() {
+            vectors += 1;
+            let h = hal_sim::physics::V3::from(pulse.h);
+            let on: Vec<usize> = (0..n_tx)
+                .filter(|&i| world.transmitter_on(i, pulse.t))
+                .collect();
+            // Normalised squared distance to each transmitter that is on (sign-free).
+            let d2 = |i: usize| {
+                let t = world.field_body(i, pulse.t).unwrap();
+                let var = p.sigma_bkg_a_per_m.powi(2)
+                    + (p.k_sen * t.norm()).powi(2)
+                    + (0.02 * t.norm()).powi(2);
+                (h - t).norm_squared().min((h + t).norm_squared()) / var
+            };
+            let best = on.iter().map(|&i| d2(i)).fold(f64::INFINITY, f64::min);
+            // χ²₃ at 1 − 1e-4.
+            if best > 21.1 {
+                wrong += 1;
+                println!("seed {seed} t {:.3}: d² {best:.1} (on: {on:?})", pulse.t);
+            }
+            let strong_pair = on.len() > 1 && {
+                let mut a: Vec<f64> = on
+                    .iter()
+                    .map(|&i| world.field_body(i, pulse.t).unwrap().norm())
+                    .collect();
+                a.sort_by(|x, y| y.total_cmp(x));
+                a[1] > 0.1 * a[0] && a[0] > 100.0 * p.sigma_bkg_a_per_m
+            };
+            if strong_pair {
+                overlapped_strong += 1;
+            }
+        }
+        flagged += run.frontend.overlaps;
+    }
+    println!(
+        "3 beacons × 3 seeds, 60 s: {vectors} vectors, {wrong} off every transmitter's field, \
+         {overlapped_strong} given under a strong interferer (≥ −20 dB), {flagged} flagged as overlaps"
+    );
+    assert!(vectors >= 100, "{vectors}");
+    assert!(flagged >= 1, "the seeds overlap pulses");
+    assert!(wrong <= 1, "{wrong} wrong vectors");
+    assert_eq!(
+        overlapped_strong, 0,
+        "a vector under a comparable interferer"
+    );
+}
