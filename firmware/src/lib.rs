@@ -20,6 +20,8 @@
 //! - [`motion`]: attitude filter, step detection and pedestrian dead reckoning (Kleiner et
 //!   al. eq. 1–3), the displacement between pulses with its covariance (IROS 2006 eq. 4).
 //! - [`session_log`]: the session-log writer (spec `arva-session` v1) the board streams.
+//! - [`timebase`]: the board's clock from the ADC's sample count, with a stalled-ADC
+//!   watchdog.
 //! - [`estimate`]: the [`estimate::Estimator`] trait and the robocentric Sum-of-Gaussians
 //!   filter [`estimate::SogFilter`] (IROS 2006 Algorithm 1; ICRA 2006 known trajectory).
 //! - [`guidance`]: search control (IROS 2006 §III-C, ICRA 2006 §V-D): flux line, then the
@@ -63,6 +65,7 @@ pub mod guidance;
 #[cfg_attr(not(test), allow(clippy::indexing_slicing))]
 pub mod motion;
 pub mod session_log;
+pub mod timebase;
 pub mod victims;
 
 /// The linear-algebra crate used in this crate's public API, re-exported so that users

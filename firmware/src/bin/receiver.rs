@@ -17,7 +17,9 @@
 //! into a lock-free queue, so no sample is lost while the main loop runs the estimator
 //! (≤ 8.4 M instructions per pulse, see `hal-sim/reports/budget.md`) or flushes the
 //! display. The ADC's sample count is the time base of everything (8 kSPS), so the
-//! pulse times of the front end and the IMU times share one clock. Each record is
+//! pulse times of the front end and the IMU times share one clock; if the ADC stops
+//! delivering (a DRDY edge lost), the 100 Hz timer carries the clock and DRDY is re-armed
+//! every 100 ms (`firmware::timebase`), so dead reckoning and the display go on. Each record is
 //! written to the session log *before* the application processes it, so a fault in the
 //! estimator never loses recorded data. Memory: the receiver state (≈ 88 KB: four victims'
 //! SOGs mixtures, see `firmware::victims`) lives in SRAM (`.uninit`, never on the stack,
@@ -44,6 +46,7 @@ use firmware::app::{AppConfig, Receiver, SearchMode};
 use firmware::drivers::ads131m04::{self, Ads131m04};
 use firmware::drivers::imu::Imu;
 use firmware::frontend::{Frontend, FrontendConfig, PulseMeasurement};
+use firmware::timebase::{ClockEvent, SampleClock};
 use firmware::victims::MarkButton;
 use firmware::{Vec3, display, session_log};
 use heapless::spsc::{Consumer, Producer, Queue};
@@ -144,8 +147,26 @@ fn EXTI9_5() {
     });
 }
 
-fn seconds(samples: u32, rate_hz: f32) -> f32 {
-    samples as f32 / rate_hz
+/// IMU sampling (and sample-clock watchdog) rate, Hz.
+const IMU_HZ: f32 = 100.0;
+
+/// Reacts to the sample clock's verdict: a stalled ADC's DRDY is re-armed by reading one
+/// frame (it stays low until the frame is read, so no further edge would come).
+fn watch_adc(event: ClockEvent) {
+    match event {
+        ClockEvent::Running => {}
+        ClockEvent::Resumed => defmt::info!("antenna ADC delivering again"),
+        ClockEvent::Stalled { rearm: false } => {}
+        ClockEvent::Stalled { rearm: true } => {
+            defmt::warn!("antenna ADC stalled: re-arming DRDY");
+            cortex_m::interrupt::free(|cs| {
+                if let Some(s) = SAMPLER.borrow(cs).borrow_mut().as_mut() {
+                    let _ = s.adc.read_frame();
+                    s.drdy.clear_interrupt_pending_bit();
+                }
+            });
+        }
+    }
 }
 
 #[entry]
@@ -252,7 +273,7 @@ fn main() -> ! {
     unsafe { cortex_m::peripheral::NVIC::unmask(pac::Interrupt::EXTI9_5) };
 
     let mut imu_tick = dp.TIM2.counter_hz(&mut rcc);
-    if imu_tick.start(100.Hz()).is_err() {
+    if imu_tick.start((IMU_HZ as u32).Hz()).is_err() {
         defmt::error!("IMU timer refused 100 Hz");
     }
     defmt::info!(
@@ -262,23 +283,31 @@ fn main() -> ! {
     );
 
     let mut taken: u32 = 0;
+    // Board time: samples taken through the front end, kept running by the IMU timer if
+    // the ADC stalls (see `firmware::timebase`).
+    let Ok(mut clock) = SampleClock::new(rate, IMU_HZ, taken) else {
+        defmt::panic!("sample clock refused its rates");
+    };
+    let mut last_imu_t = f32::NEG_INFINITY;
     loop {
         while let Some(sample) = consumer.dequeue() {
             taken = taken.wrapping_add(1);
             match frontend.push(sample.volts, sample.clipped) {
                 Ok(Some(pulse)) => {
+                    // The DSP counts only the samples it saw: stalls are added back.
+                    let t_pulse = pulse.t_s + clock.offset_s();
                     let model = match pulse.measurement {
                         PulseMeasurement::Field(h) => {
                             let _ = session_log::write_pulse(
                                 &mut log,
-                                f64::from(pulse.t_s),
+                                f64::from(t_pulse),
                                 &h,
                                 pulse.src,
                             );
-                            receiver.on_pulse(pulse.t_s, &h, pulse.src).ok()
+                            receiver.on_pulse(t_pulse, &h, pulse.src).ok()
                         }
                         // Overlap, clipping, truncation: held out of the estimators.
-                        _ => Some(receiver.on_withheld(pulse.t_s)),
+                        _ => Some(receiver.on_withheld(t_pulse)),
                     };
                     if let Some(model) = model
                         && screen_ok
@@ -294,6 +323,7 @@ fn main() -> ! {
             }
         }
         if imu_tick.wait().is_ok() {
+            watch_adc(clock.tick(taken));
             // The mark button, polled at the IMU tick (debounced over 3 ticks).
             if mark.poll() {
                 match receiver.mark() {
@@ -308,8 +338,10 @@ fn main() -> ! {
                     }
                 }
             }
-            if let Some(imu) = imu.as_mut() {
-                let t = seconds(taken, rate);
+            let t = clock.now_s();
+            // A short hole in the ADC's samples holds the clock: skip that tick's sample.
+            if let Some(imu) = imu.as_mut().filter(|_| t > last_imu_t) {
+                last_imu_t = t;
                 match imu.read() {
                     Ok(r) => {
                         let _ = session_log::write_imu(
