@@ -51,6 +51,10 @@ use crate::guidance::{
 use crate::motion::{Motion, MotionConfig, MotionError};
 use crate::victims::{MAX_VICTIMS, MotionCut, Victim, VictimBank, VictimSog};
 
+/// A target whose own pulses have not come for this long (s) gives way to a heard
+/// unmarked victim: several signal timeouts, longer than most overlaps of two pulse
+/// trains (tens of pulses), so the arrow does not hop between victims in overlaps.
+pub const TARGET_SILENT_S: f32 = 15.0;
 /// The target switches to another unmarked victim only when that one is nearer than this
 /// fraction of the target's horizontal distance...
 const SWITCH_RATIO: f32 = 0.6;
@@ -251,6 +255,19 @@ pub struct Receiver {
     classic: Option<ClassicSearch>,
 }
 
+/// The motion cut at a pulse at `t` when several victims share the motion
+/// ([`Motion::take_split`]).
+fn split_cut(motion: &mut Motion, t: f32) -> MotionCut {
+    let split = motion.take_split(t);
+    MotionCut {
+        cut: to_estimate(&split.cut),
+        partial: to_estimate(&split.partial),
+        back: to_estimate(&split.back),
+        distance_m: split.cut.distance_m,
+        partial_m: split.partial.distance_m,
+    }
+}
+
 /// The classic mode's thresholds with this receiver's pulse noise and signal timeout.
 fn classic_config(cfg: &AppConfig) -> ClassicConfig {
     ClassicConfig {
@@ -413,11 +430,22 @@ impl Receiver {
     /// much nearer and the target is not close (hysteresis: the arrow must not flap
     /// between two victims at similar distances).
     fn select_target(&mut self) {
+        // Only the target's own pulses renew its guidance: a target silent for
+        // TARGET_SILENT_S (its track lost, or a long overlap) while another unmarked
+        // victim is heard gives way to the nearest heard one (else the rescuer is left
+        // with "no signal" and walks off). Shorter silences (overlaps) keep it.
+        let heard_since = self.t_now - self.cfg.signal_timeout_s;
+        let heard = self.bank.nearest_unmarked_heard_since(heard_since);
         let current = self
             .target
             .and_then(|i| self.bank.get(i).map(|v| (i, v)))
-            .filter(|(_, v)| !v.marked());
-        let nearest = self.bank.nearest_unmarked();
+            .filter(|(_, v)| !v.marked())
+            .filter(|(_, v)| self.t_now - v.last_t() <= TARGET_SILENT_S || heard.is_none());
+        let nearest = if current.is_none() {
+            heard.or_else(|| self.bank.nearest_unmarked())
+        } else {
+            self.bank.nearest_unmarked()
+        };
         let next = match (current, nearest) {
             (None, n) => n.map(|n| n.0),
             (Some((c, v)), Some((n, dn))) if n != c => match v.position_now() {
@@ -514,10 +542,23 @@ impl Receiver {
         if self.classic.is_some() {
             return self.on_pulse_classic(t, h_body);
         }
+        // A source not in the list may be a listed victim's transmitter under a new track
+        // id: the victim whose mixture explains the pulse takes it (see
+        // `VictimBank::reassociate`), before a slot is taken or the pulse dropped.
+        if self.bank.slot_of(src).is_none() && !self.bank.is_empty() {
+            let mut m = self.motion.clone();
+            let cut = split_cut(&mut m, t);
+            let (rpy, cov) = m.attitude();
+            let pulse = estimate::Pulse { h: *h_body, t };
+            let _ = self
+                .bank
+                .reassociate(src, &cut, &Attitude { rpy, cov }, &pulse);
+        }
         let Some(slot) = self.bank.slot_for(src, t) else {
             self.stats.other_source = self.stats.other_source.saturating_add(1);
             return Ok(self.display_model());
         };
+        let fresh = !self.bank.get(slot).is_some_and(|v| v.has_src(src));
         // Work on a copy of the motion state: the displacement is only consumed when the
         // estimator accepts the pulse.
         let mut motion = self.motion.clone();
@@ -525,7 +566,7 @@ impl Receiver {
         // as the single filter did; with several, the cut is split (see `take_split`).
         let lone = match self.bank.len() {
             0 => true,
-            1 => self.bank.get(slot).is_some_and(|v| v.src() == src),
+            1 => self.bank.get(slot).is_some_and(|v| v.has_src(src)),
             _ => false,
         };
         let cut = if lone {
@@ -538,14 +579,7 @@ impl Receiver {
                 partial_m: 0.0,
             }
         } else {
-            let split = motion.take_split(t);
-            MotionCut {
-                cut: to_estimate(&split.cut),
-                partial: to_estimate(&split.partial),
-                back: to_estimate(&split.back),
-                distance_m: split.cut.distance_m,
-                partial_m: split.partial.distance_m,
-            }
+            split_cut(&mut motion, t)
         };
         let (rpy, cov) = motion.attitude();
         let attitude = Attitude { rpy, cov };
@@ -573,7 +607,11 @@ impl Receiver {
             self.stats.pulses_gated = self.stats.pulses_gated.saturating_add(1);
         }
         self.bank.drop_lost(t);
-        if self.target.is_some_and(|i| self.bank.get(i).is_none()) {
+        // A target dropped, or its slot given to another transmitter, is no longer one.
+        if self
+            .target
+            .is_some_and(|i| self.bank.get(i).is_none() || (fresh && i == slot))
+        {
             self.set_target(None);
         }
         if self.target.is_none() && self.bank.get(slot).is_some_and(|v| !v.marked()) {

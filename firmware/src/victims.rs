@@ -52,6 +52,16 @@ pub const FEW_PULSES: u32 = 5;
 /// Silence (s) after which a victim of fewer than [`FEW_PULSES`] pulses is dropped: a
 /// few of the longest periods, longer than the front end keeps an unconfirmed track.
 pub const SHORT_LOST_S: f32 = 6.0;
+/// A listed victim silent at least this long (s) may take a new front-end track whose
+/// pulse its mixture explains ([`VictimBank::reassociate`]): longer than the longest
+/// period of the standard (1.3 s), so it missed at least one of its own pulses.
+pub const REASSOCIATE_SILENT_S: f32 = 1.5;
+/// A victim's mixture must be localized to this fraction of its distance (σ_h / d, a
+/// bearing known to about ±11°) before it may take a new track ([`VictimBank::reassociate`]).
+pub const REASSOCIATE_SIGMA_FRACTION: f32 = 0.2;
+/// With the list full, a victim silent at least this long (s) may be evicted for a new
+/// transmitter ([`VictimBank::slot_for`]): several of the longest periods.
+pub const EVICT_SILENT_S: f32 = 10.0;
 
 type Mat6 = SMatrix<f32, 6, 6>;
 
@@ -171,6 +181,22 @@ impl Victim {
         self.src
     }
 
+    /// Whether pulses of `src` are this victim's.
+    pub fn has_src(&self, src: Option<u8>) -> bool {
+        self.active && self.src == src
+    }
+
+    /// Whether its mixture is localized enough to tell its transmitter's pulses from
+    /// another's: horizontal σ (√ of the covariance's horizontal trace) within
+    /// [`REASSOCIATE_SIGMA_FRACTION`] of its horizontal distance. A broad mixture (early
+    /// flux-line phase) explains a pulse from anywhere around.
+    fn localized(&self) -> bool {
+        self.filter.estimate().is_some_and(|e| {
+            let sigma = libm::sqrtf((e.cov[(0, 0)] + e.cov[(1, 1)]).max(0.0));
+            sigma <= REASSOCIATE_SIGMA_FRACTION * e.p.xy().norm()
+        })
+    }
+
     /// This victim's mixture.
     pub fn filter(&self) -> &VictimSog {
         &self.filter
@@ -276,16 +302,72 @@ impl VictimBank {
         self.slots.get(i).filter(|v| v.active)
     }
 
+    /// The slot of the victim whose pulses `src` are, if listed.
+    pub fn slot_of(&self, src: Option<u8>) -> Option<usize> {
+        self.slots.iter().position(|v| v.has_src(src))
+    }
+
     /// The slot for a pulse of `src` at `t`: its victim's, else a free one (a slot whose
-    /// unmarked victim was silent for [`LOST_S`] is free again). `None`: all taken.
+    /// unmarked victim was silent for [`LOST_S`] is free again), else the least useful
+    /// victim silent for [`EVICT_SILENT_S`]: marked ones first (found: their mixture is
+    /// no longer needed), then the one of fewest pulses. `None`: every victim is needed.
     pub fn slot_for(&self, src: Option<u8>, t: f32) -> Option<usize> {
-        if let Some(i) = self.slots.iter().position(|v| v.active && v.src == src) {
+        if let Some(i) = self.slot_of(src) {
             return Some(i);
         }
         self.slots
             .iter()
             .position(|v| !v.active)
             .or_else(|| self.slots.iter().position(|v| self.lost(v, t)))
+            .or_else(|| {
+                self.slots
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, v)| t - v.last_t >= EVICT_SILENT_S)
+                    .min_by_key(|(_, v)| (!v.marked, v.pulses))
+                    .map(|(i, _)| i)
+            })
+    }
+
+    /// A pulse of a source not in the list: the victim silent for at least
+    /// [`REASSOCIATE_SILENT_S`] whose mixture explains it (the filter's outlier gate,
+    /// with the motion since that victim's last pulse composed as [`VictimBank::step`]
+    /// would) takes `src` — the front end gave its transmitter a new track id (after a
+    /// long overlap or silence). Only a localized mixture qualifies (see
+    /// [`Victim::localized`]); among several, the one of most pulses. Returns its slot.
+    /// Read-only but for the relabelling.
+    pub fn reassociate(
+        &mut self,
+        src: Option<u8>,
+        m: &MotionCut,
+        attitude: &Attitude,
+        pulse: &Pulse,
+    ) -> Option<usize> {
+        if src.is_none() || self.slot_of(src).is_some() {
+            return None;
+        }
+        let mut best: Option<(usize, u32)> = None;
+        for (i, v) in self.slots.iter().enumerate() {
+            if !v.active || pulse.t - v.last_t < REASSOCIATE_SILENT_S || !v.localized() {
+                continue;
+            }
+            let Some(own) = v
+                .pending
+                .then(&m.cut, m.distance_m)
+                .and_then(|p| p.then(&m.partial, m.partial_m))
+            else {
+                continue;
+            };
+            if v.filter.explains(&own.d, attitude, pulse) == Some(true)
+                && best.is_none_or(|(_, n)| v.pulses > n)
+            {
+                best = Some((i, v.pulses));
+            }
+        }
+        let (i, _) = best?;
+        let v = self.slots.get_mut(i)?;
+        v.src = src;
+        Some(i)
     }
 
     fn lost(&self, v: &Victim, t: f32) -> bool {
@@ -336,7 +418,7 @@ impl VictimBank {
             }
         }
         let slot = self.slots.get(i).ok_or(EstimateError::InvalidConfig)?;
-        let fresh_victim = !(slot.active && slot.src == src);
+        let fresh_victim = !slot.has_src(src);
         // A new victim's motion before its first pulse does not matter (a fresh mixture).
         let before = if fresh_victim {
             Pending::zero()
@@ -405,8 +487,13 @@ impl VictimBank {
 
     /// The nearest unmarked victim (horizontal distance now) with an estimate.
     pub fn nearest_unmarked(&self) -> Option<(usize, f32)> {
+        self.nearest_unmarked_heard_since(f32::NEG_INFINITY)
+    }
+
+    /// The nearest unmarked victim with an estimate heard at or after `since` (s).
+    pub fn nearest_unmarked_heard_since(&self, since: f32) -> Option<(usize, f32)> {
         self.active()
-            .filter(|(_, v)| !v.marked)
+            .filter(|(_, v)| !v.marked && v.last_t >= since)
             .filter_map(|(i, v)| v.position_now().map(|p| (i, p.xy().norm())))
             .min_by(|a, b| a.1.total_cmp(&b.1))
     }

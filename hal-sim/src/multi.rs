@@ -112,6 +112,8 @@ pub struct MultiConfig {
     pub layout: Layout,
     /// The rescuer (lag, heading noise, step length, calibration, lift).
     pub rescuer: ClosedLoopConfig,
+    /// Print a diagnostic trace of the run to stderr (`multi-report --trace`).
+    pub trace: bool,
 }
 
 impl MultiConfig {
@@ -122,6 +124,7 @@ impl MultiConfig {
             victims: victims.clamp(1, firmware::victims::MAX_VICTIMS),
             layout,
             rescuer: ClosedLoopConfig::new(seed),
+            trace: false,
         }
     }
 }
@@ -449,13 +452,21 @@ pub fn run_with(
                 + V3::new(gauss(&mut rng), gauss(&mut rng), gauss(&mut rng)) * sigma)
                 * sign;
             let h = Vec3::new(h_b.x as f32, h_b.y as f32, h_b.z as f32);
-            if rx.on_pulse(centre as f32, &h, Some(src)).is_ok() {
+            let other_before = rx.stats().other_source;
+            let res = rx.on_pulse(centre as f32, &h, Some(src));
+            if cfg.trace {
+                trace_pulse(&rx, centre, i, src, &res, other_before);
+            }
+            if res.is_ok() {
                 tally[i].pulses += 1;
                 first_t.get_or_insert(centre);
                 on_event(Event::Pulse(centre), &rx);
             }
         }
         let display = rx.display_model();
+        if cfg.trace && k % 1000 == 0 {
+            trace_state(&rx, &sc.txs, &p1.p, p1.t);
+        }
         list_max = list_max.max(display.victims);
         heading_err = ar * heading_err + (1.0 - ar * ar).sqrt() * sigma_heading * gauss(&mut rng);
         // Probing, then mark.
@@ -477,6 +488,12 @@ pub fn run_with(
                         let err = (V3::from(probe) - V3::from(sc.txs[v].position)).xy().norm();
                         found_t[v] = Some((p1.t, err));
                     }
+                    if cfg.trace {
+                        eprintln!(
+                            "{:.1} MARK #{number} probe ({:.2}, {:.2}) found {found:?}",
+                            p1.t, probe[0], probe[1]
+                        );
+                    }
                     marks.push(MarkEvent {
                         t: p1.t,
                         number,
@@ -495,12 +512,20 @@ pub fn run_with(
         if found_t.iter().all(Option::is_some) {
             break;
         }
+        if cfg.trace && t + DT >= max_t {
+            eprintln!("{:.1} END: time limit", p1.t);
+            trace_state(&rx, &sc.txs, &p1.p, p1.t);
+        }
         // Nothing left to guide to (every listed victim marked): the rescuer waits a
         // little for a new signal, then ends the search.
         if display.target.is_none() && display.victims > 0 && display.found == display.victims {
             person.w_target = 0.0;
             let t0 = *idle_since.get_or_insert(p1.t);
             if p1.t - t0 > SETTLE_S {
+                if cfg.trace {
+                    eprintln!("{:.1} END: every listed victim marked", p1.t);
+                    trace_state(&rx, &sc.txs, &p1.p, p1.t);
+                }
                 break;
             }
             continue;
@@ -564,6 +589,72 @@ pub fn run_with(
     })
 }
 
+/// Trace line of one pulse given to the receiver (only when its slot, source or fate is
+/// worth noting: refused, beyond the list, a slot's first pulse).
+fn trace_pulse(
+    rx: &Receiver,
+    t: f64,
+    victim: usize,
+    src: u8,
+    res: &Result<firmware::app::DisplayModel, firmware::app::AppError>,
+    other_before: u32,
+) {
+    let slot = rx.victims().active().find(|(_, v)| v.src() == Some(src));
+    let fate = match (res, slot) {
+        (Err(e), _) => format!("refused {e:?}"),
+        (Ok(_), None) if rx.stats().other_source > other_before => "LIST FULL".into(),
+        (Ok(_), Some((i, v))) if v.pulses() <= 1 => format!("new in slot {}", i + 1),
+        _ => return,
+    };
+    eprintln!("{t:.1} pulse of victim {} src {src}: {fate}", victim + 1);
+}
+
+/// Trace of the state: the rescuer, each true victim's distance, the display and the list
+/// with each listed victim's estimate error against the nearest true victim.
+fn trace_state(rx: &Receiver, txs: &[Transmitter], p: &V3, t: f64) {
+    let d = rx.display_model();
+    let truth: Vec<String> = txs
+        .iter()
+        .enumerate()
+        .map(|(i, tx)| format!("v{}:{:.1}m", i + 1, (V3::from(tx.position) - p).xy().norm()))
+        .collect();
+    let rows: Vec<String> = rx
+        .victims()
+        .active()
+        .map(|(i, v)| {
+            let est = v.position_now().map(|e| {
+                let w = p + V3::new(f64::from(e.x), f64::from(e.y), f64::from(e.z));
+                let (j, err) = txs
+                    .iter()
+                    .enumerate()
+                    .map(|(j, tx)| (j, (V3::from(tx.position) - w).xy().norm()))
+                    .min_by(|a, b| a.1.total_cmp(&b.1))
+                    .unwrap_or((0, f64::NAN));
+                format!("~v{} err {err:.2}", j + 1)
+            });
+            format!(
+                "#{} src {:?} n {} last {:.0}{}{}",
+                i + 1,
+                v.src(),
+                v.pulses(),
+                v.last_t(),
+                if v.marked() { " M" } else { "" },
+                est.unwrap_or_default()
+            )
+        })
+        .collect();
+    eprintln!(
+        "{t:.1} @({:.1},{:.1}) {} | {:?} tgt {:?} h {:?} | {}",
+        p.x,
+        p.y,
+        truth.join(" "),
+        d.status,
+        d.target,
+        d.horizontal_m,
+        rows.join("; ")
+    );
+}
+
 /// The nearest true victim not found yet within [`FOUND_RADIUS_M`] of `probe`.
 fn nearest_unfound(
     txs: &[Transmitter],
@@ -598,6 +689,9 @@ pub struct Args {
     /// mixture capacity, to compare with `rescue.md`.
     #[arg(long, default_value_t = 100)]
     pub single_tries: u64,
+    /// Trace one rescue instead (`SEED,LAYOUT`, layout 0–3 in report order) to stderr.
+    #[arg(long)]
+    pub trace: Option<String>,
 }
 
 /// The victim count of seed `seed`: 2, 3, 4, 2, …
@@ -608,6 +702,9 @@ pub fn victims_for(seed: u64) -> usize {
 /// Runs every layout and writes the report.
 pub fn report(args: &Args, out: &mut dyn std::io::Write) -> anyhow::Result<()> {
     use rayon::prelude::*;
+    if let Some(spec) = &args.trace {
+        return trace(spec);
+    }
     let mut md = String::new();
     let _ = writeln!(
         md,
@@ -645,6 +742,42 @@ pub fn report(args: &Args, out: &mut dyn std::io::Write) -> anyhow::Result<()> {
         std::fs::write(p, &md)?;
     }
     out.write_all(md.as_bytes())?;
+    Ok(())
+}
+
+/// Runs one rescue (`SEED,LAYOUT`) with the trace on.
+fn trace(spec: &str) -> anyhow::Result<()> {
+    let mut it = spec.split(',').map(str::trim);
+    let seed: u64 = it.next().unwrap_or("1").parse()?;
+    let layout: usize = it.next().unwrap_or("0").parse()?;
+    let layout = *Layout::ALL
+        .get(layout)
+        .ok_or_else(|| anyhow::anyhow!("layout index 0–3"))?;
+    let mut cfg = MultiConfig::new(seed, victims_for(seed), layout);
+    cfg.trace = true;
+    let o = run(&cfg)?;
+    for (i, v) in o.victims.iter().enumerate() {
+        eprintln!(
+            "v{}: period {:.4} carrier {:+.1} found {} err {:?} pulses {} withheld {} ids {}",
+            i + 1,
+            v.period_s,
+            v.carrier_offset_hz,
+            v.found,
+            v.error_h_m,
+            v.pulses,
+            v.withheld,
+            v.ids
+        );
+    }
+    eprintln!(
+        "end {:.1} s, marks {}, wrong {}, other_source {}, refused {}, reinit {}",
+        o.end_t,
+        o.marks.len(),
+        o.wrong_marks(),
+        o.other_source,
+        o.refused,
+        o.reinitializations
+    );
     Ok(())
 }
 
