@@ -265,6 +265,9 @@ fn split_cut(motion: &mut Motion, t: f32) -> MotionCut {
         back: to_estimate(&split.back),
         distance_m: split.cut.distance_m,
         partial_m: split.partial.distance_m,
+        steps: split.cut.steps,
+        standing: split.standing,
+        floors: Some(motion.config().noise),
     }
 }
 
@@ -577,6 +580,9 @@ impl Receiver {
                 back: estimate::Displacement::zero(),
                 distance_m: d.distance_m,
                 partial_m: 0.0,
+                steps: d.steps,
+                standing: false,
+                floors: None,
             }
         } else {
             split_cut(&mut motion, t)
@@ -675,6 +681,7 @@ impl Receiver {
         if t.is_finite() {
             self.last_withheld_t = Some(self.last_withheld_t.map_or(t, |w| w.max(t)));
         }
+        self.bank.note_withheld(t);
         self.overlap = true;
         self.stats.pulses_withheld = self.stats.pulses_withheld.saturating_add(1);
         self.display_model()
@@ -709,13 +716,26 @@ impl Receiver {
                     .filter(|a| a.is_finite()),
             )
         };
+        let list = self.victim_list(yaw);
+        // Several victims: a target whose own pulses do not come (withheld in a long
+        // overlap, or just chosen after a mark) is shown where its mixture puts it (its
+        // list row), so the rescuer walks there instead of searching blindly; its next
+        // own pulse brings the search control's guidance back.
+        let silent = (self.bank.len() >= 2 && status == Status::NoSignal)
+            .then(|| list.iter().flatten().find(|r| r.target))
+            .flatten()
+            .and_then(|r| Some((r.arrow_deg?, r.distance_m?)));
+        let (status, arrow_deg, walk_m, horizontal_m) = match silent {
+            Some((arrow, d)) => (Status::Localized, Some(arrow), Some(d), Some(d)),
+            None => (status, arrow_deg, g.walk_m, g.horizontal_m),
+        };
         DisplayModel {
             status,
             arrow_deg,
             distance_m: g.distance_m,
-            horizontal_m: g.horizontal_m,
+            horizontal_m,
             depth_m: g.depth_m,
-            walk_m: g.walk_m,
+            walk_m,
             uncertainty_m: g.sigma_h_m,
             victims: u8::try_from(self.bank.len()).unwrap_or(u8::MAX),
             overlap: self.overlap,
@@ -727,7 +747,7 @@ impl Receiver {
                 .or(self.last_pulse_t)
                 .unwrap_or(0.0),
             lift: g.lift && !timed_out,
-            list: self.victim_list(yaw),
+            list,
             target: self
                 .target
                 .map(|i| u8::try_from(i).unwrap_or(u8::MAX).saturating_add(1)),

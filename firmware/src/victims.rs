@@ -31,6 +31,7 @@ use crate::estimate::{
     Attitude, Displacement, EstimateError, Estimator, Pulse, SogConfig, SogFilter, StepReport,
 };
 use crate::frame::{Rpy, compose_rpy, rotation_from_rpy, rotation_partials};
+use crate::motion::PdrNoise;
 use nalgebra::SMatrix;
 
 /// Victims followed at once (the front end may track more transmitters, see
@@ -52,6 +53,9 @@ pub const FEW_PULSES: u32 = 5;
 /// Silence (s) after which a victim of fewer than [`FEW_PULSES`] pulses is dropped: a
 /// few of the longest periods, longer than the front end keeps an unconfirmed track.
 pub const SHORT_LOST_S: f32 = 6.0;
+/// A pulse withheld as an overlap within this time (s) keeps silent established victims
+/// listed (several of the longest periods).
+pub const OVERLAP_HOLD_S: f32 = 5.0;
 /// A listed victim silent at least this long (s) may take a new front-end track whose
 /// pulse its mixture explains ([`VictimBank::reassociate`]): longer than the longest
 /// period of the standard (1.3 s), so it missed at least one of its own pulses.
@@ -109,6 +113,10 @@ pub struct Pending {
     pub d: Displacement,
     /// Distance walked along the path, m.
     pub distance_m: f32,
+    /// Steps detected in the cuts composed (for the interval floors).
+    pub steps: u32,
+    /// The walker stood through every cut composed.
+    pub standing: bool,
 }
 
 impl Pending {
@@ -117,6 +125,8 @@ impl Pending {
         Self {
             d: Displacement::zero(),
             distance_m: 0.0,
+            steps: 0,
+            standing: true,
         }
     }
 
@@ -125,7 +135,25 @@ impl Pending {
         Some(Self {
             d: compose(&self.d, next)?,
             distance_m: self.distance_m + distance_m.max(0.0),
+            ..*self
         })
+    }
+
+    /// This motion followed by the cut `m.cut` (its steps and standing counted).
+    pub fn then_cut(&self, m: &MotionCut) -> Option<Self> {
+        let mut p = self.then(&m.cut, m.distance_m)?;
+        p.steps = p.steps.saturating_add(u32::from(m.steps));
+        p.standing &= m.standing;
+        Some(p)
+    }
+
+    /// This motion with the per-interval floors of `noise` added once for the whole
+    /// interval (see [`crate::motion::Motion::take_split`]); `None` leaves it as is.
+    pub fn with_floors(mut self, noise: Option<&PdrNoise>) -> Self {
+        if let Some(n) = noise {
+            self.d.cov += n.interval_floors(self.steps, self.standing);
+        }
+        self
     }
 }
 
@@ -143,6 +171,13 @@ pub struct MotionCut {
     pub distance_m: f32,
     /// Length of the step in progress credited at the pulse, m.
     pub partial_m: f32,
+    /// Steps detected in the cut.
+    pub steps: u16,
+    /// The walker stood through the cut.
+    pub standing: bool,
+    /// The per-interval floors to add once per victim interval (`None`: already in
+    /// `cut`, a lone victim's whole interval from `take_displacement`).
+    pub floors: Option<PdrNoise>,
 }
 
 /// One victim of the list.
@@ -238,6 +273,8 @@ impl Victim {
 #[derive(Debug, Clone)]
 pub struct VictimBank {
     slots: [Victim; MAX_VICTIMS],
+    /// Time of the last pulse the front end withheld as an overlap (s).
+    withheld_t: f32,
 }
 
 impl VictimBank {
@@ -262,6 +299,16 @@ impl VictimBank {
                 Victim::empty(cfg),
                 Victim::empty(cfg),
             ],
+            withheld_t: f32::NEG_INFINITY,
+        }
+    }
+
+    /// The front end withheld a pulse at `t` (s; overlapping transmitters): an
+    /// established victim is not dropped as lost while pulses are being withheld (its
+    /// own may be among them: two trains of nearly equal periods overlap for minutes).
+    pub fn note_withheld(&mut self, t: f32) {
+        if t.is_finite() {
+            self.withheld_t = self.withheld_t.max(t);
         }
     }
 
@@ -274,6 +321,7 @@ impl VictimBank {
             v.marked = false;
             v.pulses = 0;
         }
+        self.withheld_t = f32::NEG_INFINITY;
     }
 
     /// The slots that hold a victim, with their slot index (the list number − 1).
@@ -353,8 +401,9 @@ impl VictimBank {
             }
             let Some(own) = v
                 .pending
-                .then(&m.cut, m.distance_m)
+                .then_cut(m)
                 .and_then(|p| p.then(&m.partial, m.partial_m))
+                .map(|p| p.with_floors(m.floors.as_ref()))
             else {
                 continue;
             };
@@ -372,9 +421,11 @@ impl VictimBank {
 
     fn lost(&self, v: &Victim, t: f32) -> bool {
         let silent = t - v.last_t;
+        let overlapping = t - self.withheld_t <= OVERLAP_HOLD_S;
         v.active
             && !v.marked
-            && (silent > LOST_S || (v.pulses < FEW_PULSES && silent > SHORT_LOST_S))
+            && ((silent > LOST_S && !overlapping)
+                || (v.pulses < FEW_PULSES && silent > SHORT_LOST_S))
     }
 
     /// Drops the unmarked victims not heard since `t − LOST_S` (`t − SHORT_LOST_S` for
@@ -411,10 +462,7 @@ impl VictimBank {
         let mut pend = [Pending::zero(); MAX_VICTIMS];
         for (p, v) in pend.iter_mut().zip(self.slots.iter()) {
             if v.active {
-                *p = v
-                    .pending
-                    .then(&m.cut, m.distance_m)
-                    .ok_or(EstimateError::OutOfRange)?;
+                *p = v.pending.then_cut(m).ok_or(EstimateError::OutOfRange)?;
             }
         }
         let slot = self.slots.get(i).ok_or(EstimateError::InvalidConfig)?;
@@ -425,12 +473,15 @@ impl VictimBank {
         } else {
             pend.get(i).copied().ok_or(EstimateError::InvalidConfig)?
         };
+        // The own victim's interval gets its floors once (see `MotionCut::floors`).
         let own = before
             .then(&m.partial, m.partial_m)
-            .ok_or(EstimateError::OutOfRange)?;
+            .ok_or(EstimateError::OutOfRange)?
+            .with_floors(m.floors.as_ref());
         let back = Pending {
             d: m.back,
             distance_m: -m.partial_m,
+            ..Pending::zero()
         };
         let slot = self.slots.get_mut(i).ok_or(EstimateError::InvalidConfig)?;
         if fresh_victim {
