@@ -991,6 +991,38 @@ mod tests {
         assert_eq!(rx.display_model().found, 2);
     }
     #[test]
+    fn a_silent_target_is_shown_at_its_estimate_then_gives_way_to_a_heard_victim() {
+        let mut rx = Receiver::new(config()).unwrap();
+        let mut t = level_imu(&mut rx, 0.0, 20);
+        let a = pulse_from([8.0, 3.0, -2.0], [0.02, 0.0, 0.0]);
+        let b = pulse_from([-25.0, 10.0, -2.0], [0.0, 0.02, 0.0]);
+        rx.on_pulse(t, &a, Some(3)).unwrap();
+        for _ in 0..6 {
+            t = level_imu(&mut rx, t, 45);
+            rx.on_pulse(t, &b, Some(1)).unwrap();
+            t = level_imu(&mut rx, t, 50);
+            rx.on_pulse(t, &a, Some(3)).unwrap();
+        }
+        assert_eq!(rx.display_model().target, Some(1));
+        // Victim 1 falls silent (its pulses withheld, say) beyond the signal timeout:
+        // still the target, shown where its mixture puts it (its list row).
+        t = level_imu(&mut rx, t, 500);
+        let d = rx.on_pulse(t, &b, Some(1)).unwrap();
+        let row = d.list[0].unwrap();
+        assert_eq!(d.target, Some(1));
+        assert_eq!(d.status, Status::Localized);
+        assert_eq!((d.arrow_deg, d.walk_m), (row.arrow_deg, row.distance_m));
+        // Silent for TARGET_SILENT_S while victim 2 is heard: the guidance moves on.
+        while rx.display_model().target == Some(1) {
+            t = level_imu(&mut rx, t, 100);
+            rx.on_pulse(t, &b, Some(1)).unwrap();
+            assert!(t < 200.0);
+        }
+        assert_eq!(rx.display_model().target, Some(2));
+        assert!(t - rx.victims().get(0).unwrap().last_t() > TARGET_SILENT_S);
+    }
+
+    #[test]
     fn full_list_counts_other_sources_and_lost_victims_are_dropped() {
         let mut rx = Receiver::new(config()).unwrap();
         let mut t = level_imu(&mut rx, 0.0, 20);

@@ -717,6 +717,120 @@ mod tests {
         }
     }
 
+    /// A bank whose first victim (source 1) was walked past: 0.5 m per pulse along
+    /// north at 3 m west of a dipole 1.5 m deep; returns the receiver's position and time.
+    fn walked_bank(tx: &Vec3, m: &Vec3) -> (Box<VictimBank>, Vec3, f32) {
+        let cfg = crate::app::AppConfig::new(Vec3::new(21.0, 0.0, -42.0), Some(0.56)).sog;
+        let mut bank = Box::new(VictimBank::new(cfg).unwrap());
+        let att = Attitude::with_sigmas(Rpy::zeros(), 0.01, 0.02);
+        let mut r = Vec3::new(-10.0, -3.0, 0.0);
+        let mut t = 0.0;
+        for k in 0..40 {
+            let step = if k == 0 {
+                Vec3::zeros()
+            } else {
+                Vec3::new(0.5, 0.0, 0.0)
+            };
+            r += step;
+            t += 1.0;
+            let h = crate::dipole::field(&(tx - r), m).unwrap();
+            let i = bank.slot_for(Some(1), t).unwrap();
+            bank.step(i, Some(1), &cut(step), &att, &Pulse { h, t })
+                .unwrap();
+        }
+        (bank, r, t)
+    }
+
+    fn cut(step: Vec3) -> MotionCut {
+        MotionCut {
+            cut: Displacement::with_sigmas(step, Rpy::zeros(), 0.03, 0.005),
+            partial: Displacement::zero(),
+            back: Displacement::zero(),
+            distance_m: step.norm(),
+            partial_m: 0.0,
+            steps: 1,
+            standing: false,
+            floors: None,
+        }
+    }
+
+    #[test]
+    fn a_new_track_goes_to_the_silent_victim_whose_mixture_explains_it() {
+        let (tx, m) = (Vec3::new(0.0, 0.0, -1.5), Vec3::new(0.02, 0.0, 0.0));
+        let (mut bank, r, t) = walked_bank(&tx, &m);
+        let v = bank.get(0).unwrap();
+        assert!(v.localized(), "{:?}", v.filter().estimate());
+        let att = Attitude::with_sigmas(Rpy::zeros(), 0.01, 0.02);
+        let still = cut(Vec3::zeros());
+        // Another transmitter 5 m away, moment across: not this victim's pulse.
+        let other =
+            crate::dipole::field(&(Vec3::new(2.0, 5.0, -1.0) - r), &Vec3::new(0.0, 0.02, 0.0))
+                .unwrap();
+        let t2 = t + 2.0;
+        assert_eq!(
+            v.filter()
+                .explains(&still.cut, &att, &Pulse { h: other, t: t2 }),
+            Some(false)
+        );
+        assert_eq!(
+            bank.reassociate(Some(7), &still, &att, &Pulse { h: other, t: t2 }),
+            None
+        );
+        // Its own transmitter under a new track id after 2 s of silence: re-associated.
+        let own = crate::dipole::field(&(tx - r), &m).unwrap();
+        // Not while it is still heard (silent < REASSOCIATE_SILENT_S).
+        let early = Pulse { h: own, t: t + 1.0 };
+        assert_eq!(bank.reassociate(Some(7), &still, &att, &early), None);
+        let p = Pulse { h: own, t: t2 };
+        assert_eq!(bank.reassociate(Some(7), &still, &att, &p), Some(0));
+        assert_eq!(bank.get(0).unwrap().src(), Some(7));
+        assert_eq!(bank.slot_for(Some(7), t2), Some(0));
+        // Non-finite input: no re-association, nothing changed.
+        let nan = Pulse {
+            h: Vec3::new(f32::NAN, 0.0, 0.0),
+            t: t2 + 2.0,
+        };
+        assert_eq!(bank.reassociate(Some(8), &still, &att, &nan), None);
+        assert_eq!(bank.get(0).unwrap().src(), Some(7));
+    }
+
+    #[test]
+    fn a_full_list_evicts_a_marked_silent_victim_first_and_keeps_overlapped_ones() {
+        let (tx, m) = (Vec3::new(0.0, 0.0, -1.5), Vec3::new(0.02, 0.0, 0.0));
+        let (mut bank, r, mut t) = walked_bank(&tx, &m);
+        let att = Attitude::with_sigmas(Rpy::zeros(), 0.01, 0.02);
+        let h = crate::dipole::field(&(tx - r), &m).unwrap();
+        let pulse = |bank: &mut VictimBank, src: u8, t: f32| {
+            let i = bank.slot_for(Some(src), t)?;
+            bank.step(i, Some(src), &cut(Vec3::zeros()), &att, &Pulse { h, t })
+                .ok()?;
+            Some(i)
+        };
+        for src in 2..=4 {
+            t += 0.3;
+            assert!(pulse(&mut bank, src, t).is_some());
+        }
+        assert!(bank.mark(0));
+        // Full, nobody silent long enough: the new source finds no slot.
+        t += 1.0;
+        assert_eq!(bank.slot_for(Some(9), t), None);
+        // Sources 2–4 keep pulsing; after EVICT_SILENT_S the marked victim 1 gives way.
+        while t < 40.0 + EVICT_SILENT_S + 1.0 {
+            t += 1.0;
+            for src in 2..=4 {
+                pulse(&mut bank, src, t + 0.1 * f32::from(src));
+            }
+        }
+        t += 1.0;
+        assert_eq!(bank.slot_for(Some(9), t), Some(0));
+        // An established unmarked victim silent beyond LOST_S stays listed while pulses
+        // are being withheld as overlaps, and is dropped once they stop.
+        let late = t + LOST_S + 1.0;
+        bank.note_withheld(late - 1.0);
+        assert_eq!(bank.drop_lost(late), 0);
+        assert_eq!(bank.drop_lost(late + OVERLAP_HOLD_S + 1.0), 3);
+    }
+
     #[test]
     fn zero_is_the_identity_and_absolute_parts_rotate() {
         let mut a = disp(
