@@ -25,6 +25,18 @@
 //! lost accuracy (probe error median 0.088 → 0.097 m, max 0.71 → 0.87 m) and a 20 s
 //! transmitter silence mid-search broke the estimate (3.2 m final error, fault test
 //! `transmitter_off_shows_no_signal_keeps_the_estimate_and_recovers`), which 80 holds.
+//! Issue 9's second round added 8 B per slot (the steps and standing flag of each
+//! victim's pending interval, for its floors) and 4 B per bank (last overlap time):
+//! 36 B in all; the re-association check runs on the stack with one copy of the motion
+//! pipeline and no copy of a filter (`SogFilter::explains` is read-only).
+//!
+//! # Track identity and the list's capacity
+//! A front end may give one transmitter several track ids (after a long overlap or
+//! silence). A pulse of an unlisted source first goes to a listed victim silent for
+//! [`REASSOCIATE_SILENT_S`] whose *localized* mixture explains it (the filter's own
+//! outlier gate, IROS eq. 12–14, with that victim's pending motion), so its mixture and
+//! mark carry over; only then does it take a free slot, the slot of a lost victim, or —
+//! list full — the least useful one silent for [`EVICT_SILENT_S`] (marked first).
 
 use crate::Vec3;
 use crate::estimate::{
@@ -227,7 +239,7 @@ impl Victim {
     /// flux-line phase) explains a pulse from anywhere around.
     fn localized(&self) -> bool {
         self.filter.estimate().is_some_and(|e| {
-            let sigma = libm::sqrtf((e.cov[(0, 0)] + e.cov[(1, 1)]).max(0.0));
+            let sigma = libm::sqrtf((e.cov.m11 + e.cov.m22).max(0.0));
             sigma <= REASSOCIATE_SIGMA_FRACTION * e.p.xy().norm()
         })
     }

@@ -464,7 +464,7 @@ pub fn run_with(
             }
         }
         let display = rx.display_model();
-        if cfg.trace && k % 1000 == 0 {
+        if cfg.trace && k.is_multiple_of(1000) {
             trace_state(&rx, &sc.txs, &p1.p, p1.t);
         }
         list_max = list_max.max(display.victims);
