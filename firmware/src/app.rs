@@ -51,6 +51,10 @@ use crate::guidance::{
 use crate::motion::{Motion, MotionConfig, MotionError};
 use crate::victims::{MAX_VICTIMS, MotionCut, Victim, VictimBank, VictimSog};
 
+/// A target whose own pulses have not come for this long (s) gives way to a heard
+/// unmarked victim: several signal timeouts, longer than most overlaps of two pulse
+/// trains (tens of pulses), so the arrow does not hop between victims in overlaps.
+pub const TARGET_SILENT_S: f32 = 15.0;
 /// The target switches to another unmarked victim only when that one is nearer than this
 /// fraction of the target's horizontal distance...
 const SWITCH_RATIO: f32 = 0.6;
@@ -251,6 +255,22 @@ pub struct Receiver {
     classic: Option<ClassicSearch>,
 }
 
+/// The motion cut at a pulse at `t` when several victims share the motion
+/// ([`Motion::take_split`]).
+fn split_cut(motion: &mut Motion, t: f32) -> MotionCut {
+    let split = motion.take_split(t);
+    MotionCut {
+        cut: to_estimate(&split.cut),
+        partial: to_estimate(&split.partial),
+        back: to_estimate(&split.back),
+        distance_m: split.cut.distance_m,
+        partial_m: split.partial.distance_m,
+        steps: split.cut.steps,
+        standing: split.standing,
+        floors: Some(motion.config().noise),
+    }
+}
+
 /// The classic mode's thresholds with this receiver's pulse noise and signal timeout.
 fn classic_config(cfg: &AppConfig) -> ClassicConfig {
     ClassicConfig {
@@ -413,11 +433,22 @@ impl Receiver {
     /// much nearer and the target is not close (hysteresis: the arrow must not flap
     /// between two victims at similar distances).
     fn select_target(&mut self) {
+        // Only the target's own pulses renew its guidance: a target silent for
+        // TARGET_SILENT_S (its track lost, or a long overlap) while another unmarked
+        // victim is heard gives way to the nearest heard one (else the rescuer is left
+        // with "no signal" and walks off). Shorter silences (overlaps) keep it.
+        let heard_since = self.t_now - self.cfg.signal_timeout_s;
+        let heard = self.bank.nearest_unmarked_heard_since(heard_since);
         let current = self
             .target
             .and_then(|i| self.bank.get(i).map(|v| (i, v)))
-            .filter(|(_, v)| !v.marked());
-        let nearest = self.bank.nearest_unmarked();
+            .filter(|(_, v)| !v.marked())
+            .filter(|(_, v)| self.t_now - v.last_t() <= TARGET_SILENT_S || heard.is_none());
+        let nearest = if current.is_none() {
+            heard.or_else(|| self.bank.nearest_unmarked())
+        } else {
+            self.bank.nearest_unmarked()
+        };
         let next = match (current, nearest) {
             (None, n) => n.map(|n| n.0),
             (Some((c, v)), Some((n, dn))) if n != c => match v.position_now() {
@@ -514,10 +545,23 @@ impl Receiver {
         if self.classic.is_some() {
             return self.on_pulse_classic(t, h_body);
         }
+        // A source not in the list may be a listed victim's transmitter under a new track
+        // id: the victim whose mixture explains the pulse takes it (see
+        // `VictimBank::reassociate`), before a slot is taken or the pulse dropped.
+        if self.bank.slot_of(src).is_none() && !self.bank.is_empty() {
+            let mut m = self.motion.clone();
+            let cut = split_cut(&mut m, t);
+            let (rpy, cov) = m.attitude();
+            let pulse = estimate::Pulse { h: *h_body, t };
+            let _ = self
+                .bank
+                .reassociate(src, &cut, &Attitude { rpy, cov }, &pulse);
+        }
         let Some(slot) = self.bank.slot_for(src, t) else {
             self.stats.other_source = self.stats.other_source.saturating_add(1);
             return Ok(self.display_model());
         };
+        let fresh = !self.bank.get(slot).is_some_and(|v| v.has_src(src));
         // Work on a copy of the motion state: the displacement is only consumed when the
         // estimator accepts the pulse.
         let mut motion = self.motion.clone();
@@ -525,7 +569,7 @@ impl Receiver {
         // as the single filter did; with several, the cut is split (see `take_split`).
         let lone = match self.bank.len() {
             0 => true,
-            1 => self.bank.get(slot).is_some_and(|v| v.src() == src),
+            1 => self.bank.get(slot).is_some_and(|v| v.has_src(src)),
             _ => false,
         };
         let cut = if lone {
@@ -536,16 +580,12 @@ impl Receiver {
                 back: estimate::Displacement::zero(),
                 distance_m: d.distance_m,
                 partial_m: 0.0,
+                steps: d.steps,
+                standing: false,
+                floors: None,
             }
         } else {
-            let split = motion.take_split(t);
-            MotionCut {
-                cut: to_estimate(&split.cut),
-                partial: to_estimate(&split.partial),
-                back: to_estimate(&split.back),
-                distance_m: split.cut.distance_m,
-                partial_m: split.partial.distance_m,
-            }
+            split_cut(&mut motion, t)
         };
         let (rpy, cov) = motion.attitude();
         let attitude = Attitude { rpy, cov };
@@ -573,7 +613,11 @@ impl Receiver {
             self.stats.pulses_gated = self.stats.pulses_gated.saturating_add(1);
         }
         self.bank.drop_lost(t);
-        if self.target.is_some_and(|i| self.bank.get(i).is_none()) {
+        // A target dropped, or its slot given to another transmitter, is no longer one.
+        if self
+            .target
+            .is_some_and(|i| self.bank.get(i).is_none() || (fresh && i == slot))
+        {
             self.set_target(None);
         }
         if self.target.is_none() && self.bank.get(slot).is_some_and(|v| !v.marked()) {
@@ -637,6 +681,7 @@ impl Receiver {
         if t.is_finite() {
             self.last_withheld_t = Some(self.last_withheld_t.map_or(t, |w| w.max(t)));
         }
+        self.bank.note_withheld(t);
         self.overlap = true;
         self.stats.pulses_withheld = self.stats.pulses_withheld.saturating_add(1);
         self.display_model()
@@ -671,13 +716,26 @@ impl Receiver {
                     .filter(|a| a.is_finite()),
             )
         };
+        let list = self.victim_list(yaw);
+        // Several victims: a target whose own pulses do not come (withheld in a long
+        // overlap, or just chosen after a mark) is shown where its mixture puts it (its
+        // list row), so the rescuer walks there instead of searching blindly; its next
+        // own pulse brings the search control's guidance back.
+        let silent = (self.bank.len() >= 2 && status == Status::NoSignal)
+            .then(|| list.iter().flatten().find(|r| r.target))
+            .flatten()
+            .and_then(|r| Some((r.arrow_deg?, r.distance_m?)));
+        let (status, arrow_deg, walk_m, horizontal_m) = match silent {
+            Some((arrow, d)) => (Status::Localized, Some(arrow), Some(d), Some(d)),
+            None => (status, arrow_deg, g.walk_m, g.horizontal_m),
+        };
         DisplayModel {
             status,
             arrow_deg,
             distance_m: g.distance_m,
-            horizontal_m: g.horizontal_m,
+            horizontal_m,
             depth_m: g.depth_m,
-            walk_m: g.walk_m,
+            walk_m,
             uncertainty_m: g.sigma_h_m,
             victims: u8::try_from(self.bank.len()).unwrap_or(u8::MAX),
             overlap: self.overlap,
@@ -689,7 +747,7 @@ impl Receiver {
                 .or(self.last_pulse_t)
                 .unwrap_or(0.0),
             lift: g.lift && !timed_out,
-            list: self.victim_list(yaw),
+            list,
             target: self
                 .target
                 .map(|i| u8::try_from(i).unwrap_or(u8::MAX).saturating_add(1)),
@@ -932,6 +990,38 @@ mod tests {
         assert_eq!(rx.mark(), Err(AppError::NoTarget));
         assert_eq!(rx.display_model().found, 2);
     }
+    #[test]
+    fn a_silent_target_is_shown_at_its_estimate_then_gives_way_to_a_heard_victim() {
+        let mut rx = Receiver::new(config()).unwrap();
+        let mut t = level_imu(&mut rx, 0.0, 20);
+        let a = pulse_from([8.0, 3.0, -2.0], [0.02, 0.0, 0.0]);
+        let b = pulse_from([-25.0, 10.0, -2.0], [0.0, 0.02, 0.0]);
+        rx.on_pulse(t, &a, Some(3)).unwrap();
+        for _ in 0..6 {
+            t = level_imu(&mut rx, t, 45);
+            rx.on_pulse(t, &b, Some(1)).unwrap();
+            t = level_imu(&mut rx, t, 50);
+            rx.on_pulse(t, &a, Some(3)).unwrap();
+        }
+        assert_eq!(rx.display_model().target, Some(1));
+        // Victim 1 falls silent (its pulses withheld, say) beyond the signal timeout:
+        // still the target, shown where its mixture puts it (its list row).
+        t = level_imu(&mut rx, t, 500);
+        let d = rx.on_pulse(t, &b, Some(1)).unwrap();
+        let row = d.list[0].unwrap();
+        assert_eq!(d.target, Some(1));
+        assert_eq!(d.status, Status::Localized);
+        assert_eq!((d.arrow_deg, d.walk_m), (row.arrow_deg, row.distance_m));
+        // Silent for TARGET_SILENT_S while victim 2 is heard: the guidance moves on.
+        while rx.display_model().target == Some(1) {
+            t = level_imu(&mut rx, t, 100);
+            rx.on_pulse(t, &b, Some(1)).unwrap();
+            assert!(t < 200.0);
+        }
+        assert_eq!(rx.display_model().target, Some(2));
+        assert!(t - rx.victims().get(0).unwrap().last_t() > TARGET_SILENT_S);
+    }
+
     #[test]
     fn full_list_counts_other_sources_and_lost_victims_are_dropped() {
         let mut rx = Receiver::new(config()).unwrap();

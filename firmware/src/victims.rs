@@ -25,12 +25,25 @@
 //! lost accuracy (probe error median 0.088 → 0.097 m, max 0.71 → 0.87 m) and a 20 s
 //! transmitter silence mid-search broke the estimate (3.2 m final error, fault test
 //! `transmitter_off_shows_no_signal_keeps_the_estimate_and_recovers`), which 80 holds.
+//! Issue 9's second round added 8 B per slot (the steps and standing flag of each
+//! victim's pending interval, for its floors) and 4 B per bank (last overlap time):
+//! 36 B in all; the re-association check runs on the stack with one copy of the motion
+//! pipeline and no copy of a filter (`SogFilter::explains` is read-only).
+//!
+//! # Track identity and the list's capacity
+//! A front end may give one transmitter several track ids (after a long overlap or
+//! silence). A pulse of an unlisted source first goes to a listed victim silent for
+//! [`REASSOCIATE_SILENT_S`] whose *localized* mixture explains it (the filter's own
+//! outlier gate, IROS eq. 12–14, with that victim's pending motion), so its mixture and
+//! mark carry over; only then does it take a free slot, the slot of a lost victim, or —
+//! list full — the least useful one silent for [`EVICT_SILENT_S`] (marked first).
 
 use crate::Vec3;
 use crate::estimate::{
     Attitude, Displacement, EstimateError, Estimator, Pulse, SogConfig, SogFilter, StepReport,
 };
 use crate::frame::{Rpy, compose_rpy, rotation_from_rpy, rotation_partials};
+use crate::motion::PdrNoise;
 use nalgebra::SMatrix;
 
 /// Victims followed at once (the front end may track more transmitters, see
@@ -52,6 +65,19 @@ pub const FEW_PULSES: u32 = 5;
 /// Silence (s) after which a victim of fewer than [`FEW_PULSES`] pulses is dropped: a
 /// few of the longest periods, longer than the front end keeps an unconfirmed track.
 pub const SHORT_LOST_S: f32 = 6.0;
+/// A pulse withheld as an overlap within this time (s) keeps silent established victims
+/// listed (several of the longest periods).
+pub const OVERLAP_HOLD_S: f32 = 5.0;
+/// A listed victim silent at least this long (s) may take a new front-end track whose
+/// pulse its mixture explains ([`VictimBank::reassociate`]): longer than the longest
+/// period of the standard (1.3 s), so it missed at least one of its own pulses.
+pub const REASSOCIATE_SILENT_S: f32 = 1.5;
+/// A victim's mixture must be localized to this fraction of its distance (σ_h / d, a
+/// bearing known to about ±11°) before it may take a new track ([`VictimBank::reassociate`]).
+pub const REASSOCIATE_SIGMA_FRACTION: f32 = 0.2;
+/// With the list full, a victim silent at least this long (s) may be evicted for a new
+/// transmitter ([`VictimBank::slot_for`]): several of the longest periods.
+pub const EVICT_SILENT_S: f32 = 10.0;
 
 type Mat6 = SMatrix<f32, 6, 6>;
 
@@ -99,6 +125,10 @@ pub struct Pending {
     pub d: Displacement,
     /// Distance walked along the path, m.
     pub distance_m: f32,
+    /// Steps detected in the cuts composed (for the interval floors).
+    pub steps: u32,
+    /// The walker stood through every cut composed.
+    pub standing: bool,
 }
 
 impl Pending {
@@ -107,6 +137,8 @@ impl Pending {
         Self {
             d: Displacement::zero(),
             distance_m: 0.0,
+            steps: 0,
+            standing: true,
         }
     }
 
@@ -115,7 +147,25 @@ impl Pending {
         Some(Self {
             d: compose(&self.d, next)?,
             distance_m: self.distance_m + distance_m.max(0.0),
+            ..*self
         })
+    }
+
+    /// This motion followed by the cut `m.cut` (its steps and standing counted).
+    pub fn then_cut(&self, m: &MotionCut) -> Option<Self> {
+        let mut p = self.then(&m.cut, m.distance_m)?;
+        p.steps = p.steps.saturating_add(u32::from(m.steps));
+        p.standing &= m.standing;
+        Some(p)
+    }
+
+    /// This motion with the per-interval floors of `noise` added once for the whole
+    /// interval (see [`crate::motion::Motion::take_split`]); `None` leaves it as is.
+    pub fn with_floors(mut self, noise: Option<&PdrNoise>) -> Self {
+        if let Some(n) = noise {
+            self.d.cov += n.interval_floors(self.steps, self.standing);
+        }
+        self
     }
 }
 
@@ -133,6 +183,13 @@ pub struct MotionCut {
     pub distance_m: f32,
     /// Length of the step in progress credited at the pulse, m.
     pub partial_m: f32,
+    /// Steps detected in the cut.
+    pub steps: u16,
+    /// The walker stood through the cut.
+    pub standing: bool,
+    /// The per-interval floors to add once per victim interval (`None`: already in
+    /// `cut`, a lone victim's whole interval from `take_displacement`).
+    pub floors: Option<PdrNoise>,
 }
 
 /// One victim of the list.
@@ -169,6 +226,22 @@ impl Victim {
     /// The front-end source of this victim (`None`: logs without source attribution).
     pub fn src(&self) -> Option<u8> {
         self.src
+    }
+
+    /// Whether pulses of `src` are this victim's.
+    pub fn has_src(&self, src: Option<u8>) -> bool {
+        self.active && self.src == src
+    }
+
+    /// Whether its mixture is localized enough to tell its transmitter's pulses from
+    /// another's: horizontal σ (√ of the covariance's horizontal trace) within
+    /// [`REASSOCIATE_SIGMA_FRACTION`] of its horizontal distance. A broad mixture (early
+    /// flux-line phase) explains a pulse from anywhere around.
+    fn localized(&self) -> bool {
+        self.filter.estimate().is_some_and(|e| {
+            let sigma = libm::sqrtf((e.cov.m11 + e.cov.m22).max(0.0));
+            sigma <= REASSOCIATE_SIGMA_FRACTION * e.p.xy().norm()
+        })
     }
 
     /// This victim's mixture.
@@ -212,6 +285,8 @@ impl Victim {
 #[derive(Debug, Clone)]
 pub struct VictimBank {
     slots: [Victim; MAX_VICTIMS],
+    /// Time of the last pulse the front end withheld as an overlap (s).
+    withheld_t: f32,
 }
 
 impl VictimBank {
@@ -236,6 +311,16 @@ impl VictimBank {
                 Victim::empty(cfg),
                 Victim::empty(cfg),
             ],
+            withheld_t: f32::NEG_INFINITY,
+        }
+    }
+
+    /// The front end withheld a pulse at `t` (s; overlapping transmitters): an
+    /// established victim is not dropped as lost while pulses are being withheld (its
+    /// own may be among them: two trains of nearly equal periods overlap for minutes).
+    pub fn note_withheld(&mut self, t: f32) {
+        if t.is_finite() {
+            self.withheld_t = self.withheld_t.max(t);
         }
     }
 
@@ -248,6 +333,7 @@ impl VictimBank {
             v.marked = false;
             v.pulses = 0;
         }
+        self.withheld_t = f32::NEG_INFINITY;
     }
 
     /// The slots that hold a victim, with their slot index (the list number − 1).
@@ -276,23 +362,82 @@ impl VictimBank {
         self.slots.get(i).filter(|v| v.active)
     }
 
+    /// The slot of the victim whose pulses `src` are, if listed.
+    pub fn slot_of(&self, src: Option<u8>) -> Option<usize> {
+        self.slots.iter().position(|v| v.has_src(src))
+    }
+
     /// The slot for a pulse of `src` at `t`: its victim's, else a free one (a slot whose
-    /// unmarked victim was silent for [`LOST_S`] is free again). `None`: all taken.
+    /// unmarked victim was silent for [`LOST_S`] is free again), else the least useful
+    /// victim silent for [`EVICT_SILENT_S`]: marked ones first (found: their mixture is
+    /// no longer needed), then the one of fewest pulses. `None`: every victim is needed.
     pub fn slot_for(&self, src: Option<u8>, t: f32) -> Option<usize> {
-        if let Some(i) = self.slots.iter().position(|v| v.active && v.src == src) {
+        if let Some(i) = self.slot_of(src) {
             return Some(i);
         }
         self.slots
             .iter()
             .position(|v| !v.active)
             .or_else(|| self.slots.iter().position(|v| self.lost(v, t)))
+            .or_else(|| {
+                self.slots
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, v)| t - v.last_t >= EVICT_SILENT_S)
+                    .min_by_key(|(_, v)| (!v.marked, v.pulses))
+                    .map(|(i, _)| i)
+            })
+    }
+
+    /// A pulse of a source not in the list: the victim silent for at least
+    /// [`REASSOCIATE_SILENT_S`] whose mixture explains it (the filter's outlier gate,
+    /// with the motion since that victim's last pulse composed as [`VictimBank::step`]
+    /// would) takes `src` — the front end gave its transmitter a new track id (after a
+    /// long overlap or silence). Only a localized mixture qualifies (see
+    /// [`Victim::localized`]); among several, the one of most pulses. Returns its slot.
+    /// Read-only but for the relabelling.
+    pub fn reassociate(
+        &mut self,
+        src: Option<u8>,
+        m: &MotionCut,
+        attitude: &Attitude,
+        pulse: &Pulse,
+    ) -> Option<usize> {
+        if src.is_none() || self.slot_of(src).is_some() {
+            return None;
+        }
+        let mut best: Option<(usize, u32)> = None;
+        for (i, v) in self.slots.iter().enumerate() {
+            if !v.active || pulse.t - v.last_t < REASSOCIATE_SILENT_S || !v.localized() {
+                continue;
+            }
+            let Some(own) = v
+                .pending
+                .then_cut(m)
+                .and_then(|p| p.then(&m.partial, m.partial_m))
+                .map(|p| p.with_floors(m.floors.as_ref()))
+            else {
+                continue;
+            };
+            if v.filter.explains(&own.d, attitude, pulse) == Some(true)
+                && best.is_none_or(|(_, n)| v.pulses > n)
+            {
+                best = Some((i, v.pulses));
+            }
+        }
+        let (i, _) = best?;
+        let v = self.slots.get_mut(i)?;
+        v.src = src;
+        Some(i)
     }
 
     fn lost(&self, v: &Victim, t: f32) -> bool {
         let silent = t - v.last_t;
+        let overlapping = t - self.withheld_t <= OVERLAP_HOLD_S;
         v.active
             && !v.marked
-            && (silent > LOST_S || (v.pulses < FEW_PULSES && silent > SHORT_LOST_S))
+            && ((silent > LOST_S && !overlapping)
+                || (v.pulses < FEW_PULSES && silent > SHORT_LOST_S))
     }
 
     /// Drops the unmarked victims not heard since `t − LOST_S` (`t − SHORT_LOST_S` for
@@ -329,26 +474,26 @@ impl VictimBank {
         let mut pend = [Pending::zero(); MAX_VICTIMS];
         for (p, v) in pend.iter_mut().zip(self.slots.iter()) {
             if v.active {
-                *p = v
-                    .pending
-                    .then(&m.cut, m.distance_m)
-                    .ok_or(EstimateError::OutOfRange)?;
+                *p = v.pending.then_cut(m).ok_or(EstimateError::OutOfRange)?;
             }
         }
         let slot = self.slots.get(i).ok_or(EstimateError::InvalidConfig)?;
-        let fresh_victim = !(slot.active && slot.src == src);
+        let fresh_victim = !slot.has_src(src);
         // A new victim's motion before its first pulse does not matter (a fresh mixture).
         let before = if fresh_victim {
             Pending::zero()
         } else {
             pend.get(i).copied().ok_or(EstimateError::InvalidConfig)?
         };
+        // The own victim's interval gets its floors once (see `MotionCut::floors`).
         let own = before
             .then(&m.partial, m.partial_m)
-            .ok_or(EstimateError::OutOfRange)?;
+            .ok_or(EstimateError::OutOfRange)?
+            .with_floors(m.floors.as_ref());
         let back = Pending {
             d: m.back,
             distance_m: -m.partial_m,
+            ..Pending::zero()
         };
         let slot = self.slots.get_mut(i).ok_or(EstimateError::InvalidConfig)?;
         if fresh_victim {
@@ -405,8 +550,13 @@ impl VictimBank {
 
     /// The nearest unmarked victim (horizontal distance now) with an estimate.
     pub fn nearest_unmarked(&self) -> Option<(usize, f32)> {
+        self.nearest_unmarked_heard_since(f32::NEG_INFINITY)
+    }
+
+    /// The nearest unmarked victim with an estimate heard at or after `since` (s).
+    pub fn nearest_unmarked_heard_since(&self, since: f32) -> Option<(usize, f32)> {
         self.active()
-            .filter(|(_, v)| !v.marked)
+            .filter(|(_, v)| !v.marked && v.last_t >= since)
             .filter_map(|(i, v)| v.position_now().map(|p| (i, p.xy().norm())))
             .min_by(|a, b| a.1.total_cmp(&b.1))
     }
@@ -577,6 +727,120 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// A bank whose first victim (source 1) was walked past: 0.5 m per pulse along
+    /// north at 3 m west of a dipole 1.5 m deep; returns the receiver's position and time.
+    fn walked_bank(tx: &Vec3, m: &Vec3) -> (Box<VictimBank>, Vec3, f32) {
+        let cfg = crate::app::AppConfig::new(Vec3::new(21.0, 0.0, -42.0), Some(0.56)).sog;
+        let mut bank = Box::new(VictimBank::new(cfg).unwrap());
+        let att = Attitude::with_sigmas(Rpy::zeros(), 0.01, 0.02);
+        let mut r = Vec3::new(-10.0, -3.0, 0.0);
+        let mut t = 0.0;
+        for k in 0..40 {
+            let step = if k == 0 {
+                Vec3::zeros()
+            } else {
+                Vec3::new(0.5, 0.0, 0.0)
+            };
+            r += step;
+            t += 1.0;
+            let h = crate::dipole::field(&(tx - r), m).unwrap();
+            let i = bank.slot_for(Some(1), t).unwrap();
+            bank.step(i, Some(1), &cut(step), &att, &Pulse { h, t })
+                .unwrap();
+        }
+        (bank, r, t)
+    }
+
+    fn cut(step: Vec3) -> MotionCut {
+        MotionCut {
+            cut: Displacement::with_sigmas(step, Rpy::zeros(), 0.03, 0.005),
+            partial: Displacement::zero(),
+            back: Displacement::zero(),
+            distance_m: step.norm(),
+            partial_m: 0.0,
+            steps: 1,
+            standing: false,
+            floors: None,
+        }
+    }
+
+    #[test]
+    fn a_new_track_goes_to_the_silent_victim_whose_mixture_explains_it() {
+        let (tx, m) = (Vec3::new(0.0, 0.0, -1.5), Vec3::new(0.02, 0.0, 0.0));
+        let (mut bank, r, t) = walked_bank(&tx, &m);
+        let v = bank.get(0).unwrap();
+        assert!(v.localized(), "{:?}", v.filter().estimate());
+        let att = Attitude::with_sigmas(Rpy::zeros(), 0.01, 0.02);
+        let still = cut(Vec3::zeros());
+        // Another transmitter 5 m away, moment across: not this victim's pulse.
+        let other =
+            crate::dipole::field(&(Vec3::new(2.0, 5.0, -1.0) - r), &Vec3::new(0.0, 0.02, 0.0))
+                .unwrap();
+        let t2 = t + 2.0;
+        assert_eq!(
+            v.filter()
+                .explains(&still.cut, &att, &Pulse { h: other, t: t2 }),
+            Some(false)
+        );
+        assert_eq!(
+            bank.reassociate(Some(7), &still, &att, &Pulse { h: other, t: t2 }),
+            None
+        );
+        // Its own transmitter under a new track id after 2 s of silence: re-associated.
+        let own = crate::dipole::field(&(tx - r), &m).unwrap();
+        // Not while it is still heard (silent < REASSOCIATE_SILENT_S).
+        let early = Pulse { h: own, t: t + 1.0 };
+        assert_eq!(bank.reassociate(Some(7), &still, &att, &early), None);
+        let p = Pulse { h: own, t: t2 };
+        assert_eq!(bank.reassociate(Some(7), &still, &att, &p), Some(0));
+        assert_eq!(bank.get(0).unwrap().src(), Some(7));
+        assert_eq!(bank.slot_for(Some(7), t2), Some(0));
+        // Non-finite input: no re-association, nothing changed.
+        let nan = Pulse {
+            h: Vec3::new(f32::NAN, 0.0, 0.0),
+            t: t2 + 2.0,
+        };
+        assert_eq!(bank.reassociate(Some(8), &still, &att, &nan), None);
+        assert_eq!(bank.get(0).unwrap().src(), Some(7));
+    }
+
+    #[test]
+    fn a_full_list_evicts_a_marked_silent_victim_first_and_keeps_overlapped_ones() {
+        let (tx, m) = (Vec3::new(0.0, 0.0, -1.5), Vec3::new(0.02, 0.0, 0.0));
+        let (mut bank, r, mut t) = walked_bank(&tx, &m);
+        let att = Attitude::with_sigmas(Rpy::zeros(), 0.01, 0.02);
+        let h = crate::dipole::field(&(tx - r), &m).unwrap();
+        let pulse = |bank: &mut VictimBank, src: u8, t: f32| {
+            let i = bank.slot_for(Some(src), t)?;
+            bank.step(i, Some(src), &cut(Vec3::zeros()), &att, &Pulse { h, t })
+                .ok()?;
+            Some(i)
+        };
+        for src in 2..=4 {
+            t += 0.3;
+            assert!(pulse(&mut bank, src, t).is_some());
+        }
+        assert!(bank.mark(0));
+        // Full, nobody silent long enough: the new source finds no slot.
+        t += 1.0;
+        assert_eq!(bank.slot_for(Some(9), t), None);
+        // Sources 2–4 keep pulsing; after EVICT_SILENT_S the marked victim 1 gives way.
+        while t < 40.0 + EVICT_SILENT_S + 1.0 {
+            t += 1.0;
+            for src in 2..=4 {
+                pulse(&mut bank, src, t + 0.1 * f32::from(src));
+            }
+        }
+        t += 1.0;
+        assert_eq!(bank.slot_for(Some(9), t), Some(0));
+        // An established unmarked victim silent beyond LOST_S stays listed while pulses
+        // are being withheld as overlaps, and is dropped once they stop.
+        let late = t + LOST_S + 1.0;
+        bank.note_withheld(late - 1.0);
+        assert_eq!(bank.drop_lost(late), 0);
+        assert_eq!(bank.drop_lost(late + OVERLAP_HOLD_S + 1.0), 3);
     }
 
     #[test]

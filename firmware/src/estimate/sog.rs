@@ -195,6 +195,26 @@ impl<const N: usize> SogFilter<N> {
         Some(best)
     }
 
+    /// Read-only: whether some component explains `pulse` after `motion` (its outlier
+    /// gate, eq. 12–14: d² ≤ `divergence_d2`). `None` before initialization or for inputs
+    /// [`Estimator::step`] would refuse. Used to give a new front-end track to the
+    /// victim whose transmitter it is (issue 9); the state is not touched.
+    pub fn explains(
+        &self,
+        motion: &Displacement,
+        attitude: &Attitude,
+        pulse: &Pulse,
+    ) -> Option<bool> {
+        if !self.initialized {
+            return None;
+        }
+        check_inputs(&self.config, self.last_t, motion, attitude, pulse).ok()?;
+        let z = pulse.h * FIELD_SCALE;
+        let mut inp = step_input(&self.config, motion, &z, self.noise_var(&z));
+        inp.scale_rev = self.scale_reversion(pulse.t);
+        Some(self.outlier_d2(&inp).is_none())
+    }
+
     /// A pulse the outlier gate refused: the mixture follows the receiver's motion
     /// ([`predict_component`]) but the pulse updates neither states nor weights
     /// (`Withheld`). It counts as an inconsistent pulse towards `divergence_pulses`

@@ -117,6 +117,26 @@ impl Default for PdrNoise {
     }
 }
 
+impl PdrNoise {
+    /// The per-interval floors [`Interval::close`] adds, as a diagonal covariance of
+    /// `[translation; rotation]`, for an interval of `steps` detected steps (`standing`:
+    /// the walker stood through all of it): translation and rotation floors, the
+    /// vertical bob, and without a step the hand's sway or an undetected start/stop.
+    /// Several victims add them once per victim interval ([`super::Motion::take_split`]).
+    pub fn interval_floors(&self, steps: u32, standing: bool) -> Mat6 {
+        let tf = self.translation_floor_m * self.translation_floor_m;
+        let fr = self.rotation_floor_rad * self.rotation_floor_rad;
+        let undetected = match (steps, standing) {
+            (0, true) => self.standing_motion_m,
+            (0, false) => self.undetected_motion_m,
+            _ => 0.0,
+        };
+        let h = tf + undetected * undetected;
+        let v = tf + self.vertical_sigma_m * self.vertical_sigma_m;
+        Mat6::from_diagonal(&nalgebra::Vector6::new(h, h, v, fr, fr, fr))
+    }
+}
+
 /// Accumulates the steps of one pulse interval.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Interval {
