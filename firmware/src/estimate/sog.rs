@@ -17,7 +17,7 @@
 //! (eq. 17), check divergence, prune, merge near-duplicates and split where needed
 //! (heaviest components first).
 
-use super::gaussian::{Component, StepInput, gate_d2, predict_component, step_component};
+use super::gaussian::{Component, StepInput, gate_d2, predict_component, step_component_iterated};
 use super::init::initialize;
 use super::mixture::{merge, moment_mean, normalize, position_moments, prune, split};
 use super::model::{FIELD_SCALE, I_RPY, I_S, MOMENT_SCALE, MotionMat, MotionVec};
@@ -325,6 +325,9 @@ impl<const N: usize> SogFilter<N> {
         let mut best_s2 = f32::INFINITY;
         let mut best_d2 = f32::INFINITY;
         let mut dropped = 0u16;
+        // Iterated update only for the components that carry the estimate (bounded
+        // count: the weights are normalized, so at most 1 / iekf_min_weight of them).
+        let iekf_log_w = libm::logf(self.config.iekf_min_weight);
         let mut i = 0;
         while i < self.comps.len() {
             let Some(c) = self.comps.get(i).copied() else {
@@ -332,7 +335,12 @@ impl<const N: usize> SogFilter<N> {
             };
             let (mut x0, mut p0) = (c.x, c.p());
             inp.revert_scale(&mut x0, &mut p0);
-            let stepped = step_component(&inp, &x0, &p0, att);
+            let iters = if c.log_w >= iekf_log_w {
+                self.config.iekf_iterations
+            } else {
+                0
+            };
+            let stepped = step_component_iterated(&inp, &x0, &p0, att, iters);
             mark(Phase::Update);
             match stepped {
                 Ok((x, p, inn)) => {
