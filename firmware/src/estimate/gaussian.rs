@@ -1429,6 +1429,12 @@ mod tests {
             let (x, p, u, q, z, r_var) = nonlinear_case(&mut rng);
             let inp = StepInput::new(&u, &q, &z, r_var);
             let (x32, p32, _, lp) = step_gaussian_iterated(&inp, &x, &p, 8).unwrap();
+            // No re-linearization: the iterated code is the plain EKF step.
+            let (xa, pa, ia, _) = step_gaussian_iterated(&inp, &x, &p, 0).unwrap();
+            let (xb, pb, ib) = step_gaussian(&inp, &x, &p).unwrap();
+            assert!((xa - xb).abs().max() <= 1e-5 * (1.0 + xb.abs().max()));
+            assert!((pa - pb).abs().max() <= 1e-5 * pb.abs().max());
+            assert!((ia.log_lik - ib.log_lik).abs() <= 1e-4 * (1.0 + ib.log_lik.abs()));
             if lp.x != x {
                 iterated += 1;
             }
