@@ -29,6 +29,11 @@ use crate::frame::Rpy;
 use crate::{Mat3, Vec3};
 use heapless::Vec;
 
+/// Largest scale variance of a component whose pulse update may be iterated: that of a
+/// calibrated step length (`SCALE_SIGMA_CALIBRATED`², with 0.1 % for rounding).
+const IEKF_MAX_SCALE_VAR: f32 =
+    super::SCALE_SIGMA_CALIBRATED * super::SCALE_SIGMA_CALIBRATED * 1.001;
+
 /// Capacity of the default filter: 240 components × 264 bytes = 63 360 bytes, which
 /// fits the STM32F405's 64 KB core-coupled RAM.
 pub const SOG_CAPACITY: usize = 240;
@@ -335,7 +340,12 @@ impl<const N: usize> SogFilter<N> {
             };
             let (mut x0, mut p0) = (c.x, c.p());
             inp.revert_scale(&mut x0, &mut p0);
-            let iters = if c.log_w >= iekf_log_w {
+            // … and only once the component's scale is known as well as a calibrated
+            // step length: the field is invariant under r → s·r, m → s³·m, so with a
+            // loose scale the MAP cost is nearly flat along that direction and a
+            // Gauss–Newton step slides along it (ARCHITECTURE, "Physics that shapes
+            // the design"; seen as rare multi-metre probe errors without calibration).
+            let iters = if c.log_w >= iekf_log_w && c.p_at(I_S, I_S) <= IEKF_MAX_SCALE_VAR {
                 self.config.iekf_iterations
             } else {
                 0
