@@ -314,6 +314,13 @@ pub struct SogConfig {
     /// It keeps the scale from integrating small linearization biases over an hour
     /// (`hal-sim/reports/reliability.md`, soak). 0 = a walk-long constant (IROS 2006).
     pub scale_tau_s: f32,
+    /// Most re-linearizations of the iterated-EKF pulse update of one component (0 = the
+    /// plain EKF update of IROS eq. 12–14; see `gaussian::step_gaussian_iterated`).
+    pub iekf_iterations: u8,
+    /// Only components whose normalized weight is at least this are iterated: at most
+    /// `1 / iekf_min_weight` of them, so a step costs at most
+    /// `iekf_iterations / iekf_min_weight` extra linearizations whatever the capacity.
+    pub iekf_min_weight: f32,
 }
 
 impl Default for SogConfig {
@@ -340,6 +347,8 @@ impl Default for SogConfig {
             divergence_pulses: 5,
             scale_divergence_d2: 16.0,
             scale_tau_s: 300.0,
+            iekf_iterations: 2,
+            iekf_min_weight: 0.2,
         }
     }
 }
@@ -393,11 +402,14 @@ impl SogConfig {
             self.divergence_d2,
             self.scale_divergence_d2,
             self.scale_tau_s,
+            self.iekf_min_weight,
         ];
         if !finite.iter().all(|v| v.is_finite()) {
             return Err(EstimateError::InvalidConfig);
         }
         let ok = self.m_min > 0.0
+            && self.iekf_min_weight > 0.0
+            && self.iekf_min_weight <= 1.0
             && self.m_max >= self.m_min
             && self.depth_min >= 0.0
             && self.depth_max >= self.depth_min

@@ -17,7 +17,7 @@
 //! (eq. 17), check divergence, prune, merge near-duplicates and split where needed
 //! (heaviest components first).
 
-use super::gaussian::{Component, StepInput, gate_d2, predict_component, step_component};
+use super::gaussian::{Component, StepInput, gate_d2, predict_component, step_component_iterated};
 use super::init::initialize;
 use super::mixture::{merge, moment_mean, normalize, position_moments, prune, split};
 use super::model::{FIELD_SCALE, I_RPY, I_S, MOMENT_SCALE, MotionMat, MotionVec};
@@ -28,6 +28,11 @@ use super::{
 use crate::frame::Rpy;
 use crate::{Mat3, Vec3};
 use heapless::Vec;
+
+/// Largest scale variance of a component whose pulse update may be iterated: that of a
+/// calibrated step length (`SCALE_SIGMA_CALIBRATED`², with 0.1 % for rounding).
+const IEKF_MAX_SCALE_VAR: f32 =
+    super::SCALE_SIGMA_CALIBRATED * super::SCALE_SIGMA_CALIBRATED * 1.001;
 
 /// Capacity of the default filter: 240 components × 264 bytes = 63 360 bytes, which
 /// fits the STM32F405's 64 KB core-coupled RAM.
@@ -345,6 +350,9 @@ impl<const N: usize> SogFilter<N> {
         let mut best_s2 = f32::INFINITY;
         let mut best_d2 = f32::INFINITY;
         let mut dropped = 0u16;
+        // Iterated update only for the components that carry the estimate (bounded
+        // count: the weights are normalized, so at most 1 / iekf_min_weight of them).
+        let iekf_log_w = libm::logf(self.config.iekf_min_weight);
         let mut i = 0;
         while i < self.comps.len() {
             let Some(c) = self.comps.get(i).copied() else {
@@ -352,7 +360,17 @@ impl<const N: usize> SogFilter<N> {
             };
             let (mut x0, mut p0) = (c.x, c.p());
             inp.revert_scale(&mut x0, &mut p0);
-            let stepped = step_component(&inp, &x0, &p0, att);
+            // … and only once the component's scale is known as well as a calibrated
+            // step length: the field is invariant under r → s·r, m → s³·m, so with a
+            // loose scale the MAP cost is nearly flat along that direction and a
+            // Gauss–Newton step slides along it (ARCHITECTURE, "Physics that shapes
+            // the design"; seen as rare multi-metre probe errors without calibration).
+            let iters = if c.log_w >= iekf_log_w && c.p_at(I_S, I_S) <= IEKF_MAX_SCALE_VAR {
+                self.config.iekf_iterations
+            } else {
+                0
+            };
+            let stepped = step_component_iterated(&inp, &x0, &p0, att, iters);
             mark(Phase::Update);
             match stepped {
                 Ok((x, p, inn)) => {
