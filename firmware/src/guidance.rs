@@ -231,6 +231,9 @@ pub struct Guidance {
     /// Smallest horizontal σ (m) seen over the mean, and the pulses since it was.
     best_sigma: f32,
     since_best_sigma: u8,
+    /// Consecutive pulses with the mean beyond the bracketing span: two end the stay over
+    /// the mean (one is the estimate jumping, not the rescuer leaving).
+    far_pulses: u8,
     /// Current bracketing offset direction from the mean (unit, horizontal, in `G`,
     /// which is north-aligned, so it stays valid as the receiver moves).
     bracket_dir: Option<[f32; 2]>,
@@ -255,6 +258,7 @@ impl Guidance {
             over_mean: 0,
             best_sigma: f32::MAX,
             since_best_sigma: 0,
+            far_pulses: 0,
             bracket_dir: None,
             probing: false,
             lift_pulses: 0,
@@ -299,6 +303,7 @@ impl Guidance {
             self.over_mean = 0;
             self.best_sigma = f32::MAX;
             self.since_best_sigma = 0;
+            self.far_pulses = 0;
             self.lift_pulses = 0;
             self.bracket_dir = None;
         }
@@ -437,11 +442,20 @@ impl Guidance {
         } else {
             self.probe_count = 0;
         }
-        let plateau = self.sigma_plateau(over, sigma_h, dist_h);
+        let beyond = dist_h > 2.0 * c.bracket_m + c.probe_reach_m;
+        self.far_pulses = if beyond {
+            self.far_pulses.saturating_add(1)
+        } else {
+            0
+        };
+        if self.far_pulses >= 2 {
+            self.over_mean = 0;
+            self.best_sigma = f32::MAX;
+            self.since_best_sigma = 0;
+        }
+        let plateau = !beyond && self.sigma_plateau(over, sigma_h);
         if over {
             self.over_mean = self.over_mean.saturating_add(1);
-        } else if dist_h > 2.0 * c.bracket_m + c.probe_reach_m {
-            self.over_mean = 0;
         }
         // Depth (range) pinned by the scale only: ask for a lift first.
         let sigma_z = libm::sqrtf(e.cov[(2, 2)].max(0.0));
@@ -480,16 +494,12 @@ impl Guidance {
 impl Guidance {
     /// Whether the belief's horizontal σ has stopped shrinking near the mean: the σ
     /// actually reached, as opposed to the fixed `probe_radius / 3`. Counted while the
-    /// receiver is within the bracketing span of the mean (the fine search's geometry);
+    /// receiver is within the bracketing span of the mean (the fine search's geometry;
+    /// the caller skips pulses beyond it and restarts after two in a row);
     /// progress is a fall below `probe_plateau_ratio` × the best σ so far.
-    fn sigma_plateau(&mut self, over: bool, sigma_h: f32, dist_h: f32) -> bool {
+    fn sigma_plateau(&mut self, over: bool, sigma_h: f32) -> bool {
         let c = &self.cfg;
         if c.probe_plateau_pulses == 0 {
-            return false;
-        }
-        if dist_h > 2.0 * c.bracket_m + c.probe_reach_m {
-            self.best_sigma = f32::MAX;
-            self.since_best_sigma = 0;
             return false;
         }
         if sigma_h < c.probe_plateau_ratio * self.best_sigma {
@@ -918,6 +928,28 @@ mod tests {
             pulses_to_probe(&mut g, |_| 0.12),
             Some(usize::from(cfg.probe_timeout_pulses) - 1)
         );
+    }
+
+    #[test]
+    fn one_jump_of_the_estimate_does_not_restart_the_timeout() {
+        let cfg = GuidanceConfig::default();
+        let timeout = usize::from(cfg.probe_timeout_pulses);
+        // A wide belief (no plateau probe) 0.2 m away, except on the pulses in `jumps`,
+        // where it is 3 m away (beyond the bracketing span): the pulse of the probe.
+        let run = |jumps: &[usize]| {
+            let mut g = localized(cfg);
+            let h = Vec3::new(1e-4, 0.0, 0.0);
+            (0..60).find(|k| {
+                let x = if jumps.contains(k) { 3.0 } else { 0.2 };
+                let e = est(Vec3::new(x, 0.0, -2.0), 0.2);
+                g.update(&input(h, 0.0, 0.0, Some(e))).status == Status::Probe
+            })
+        };
+        assert_eq!(run(&[]), Some(timeout - 1));
+        // One jump: that pulse is not over the mean, the count goes on.
+        assert_eq!(run(&[5]), Some(timeout));
+        // Two in a row: the rescuer left, the count starts again after them.
+        assert_eq!(run(&[5, 6]), Some(7 + timeout - 1));
     }
 
     #[test]
