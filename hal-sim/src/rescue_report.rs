@@ -763,9 +763,14 @@ probe rule's fixed 3σ ≤ 0.3 m, so most probes came from the 16-pulse timeout 
 without a sharper estimate at the end. The probe rule is now the issue's: the horizontal \
 distance to the mean within the estimate's uncertainty or within reach (0.5 m), and either \
 3σ ≤ 0.3 m on two pulses or the σ actually reached — no 10 % progress over 6 pulses, and at \
-most 0.15 m. This halved the fine search (≈ 21 → ≈ 11 pulses, calibrated) and removed most \
-failures; the median probe-point error is unchanged within the run-to-run spread \
-(0.08–0.11 m on either seed range before and after). The remaining ≈ 11 pulses are the \
+most 0.15 m; one jump of the estimate beyond the bracketing span no longer restarts the \
+16-pulse count. This halved the fine search (seeds 1–100, calibrated: 13.7 + 8.1 → 5.5 + 5.9 \
+pulses; steps / ideal median 1.55 → 1.28, uncalibrated 1.64 → 1.38) and removed most \
+failures (calibrated 4 → 1, uncalibrated 14 → 4; seeds 1000–1099: 3 → 1, 12 → 3). The \
+median probe-point error stayed within the spread between seed ranges (0.076–0.111 m over \
+the four medians before, 0.089–0.102 m after); the largest errors moved both ways (seeds \
+1–100 calibrated 0.50 → 0.75 m, seeds 1000–1099 1.51 → 1.08 m), and the rescuer now stands \
+up to 0.5 m from the probe point (median 0.18 → 0.24 m). The remaining ≈ 11 pulses are the \
 step-by-step walk (each stop, pulse and 0.5 s reading lag costs ≈ 2 pulses; turning round on \
 the spot after an overshoot ≈ 3) and the estimate's jumps of 0.2–0.6 m as the receiver passes \
 over the victim. Wider bracketing (±1 m instead of ±0.5 m) was tried: the σ at the probe did \
