@@ -775,6 +775,9 @@ step-by-step walk (each stop, pulse and 0.5 s reading lag costs ≈ 2 pulses; tu
 the spot after an overshoot ≈ 3) and the estimate's jumps of 0.2–0.6 m as the receiver passes \
 over the victim. Wider bracketing (±1 m instead of ±0.5 m) was tried: the σ at the probe did \
 not shrink (0.087 vs 0.088 m) and the uncalibrated rescues got slower, so it stays at ±0.5 m. \
+Also tried and not kept: starting the bracketing on the far side of the mean (no turn-round on \
+arrival; under 0.3 pulses gained) and counting the timeout only within max(0.3 m, σ) of the \
+mean (more probe errors above 0.2 m). \
 The dead reckoning adds 0.2–0.6 m σ per pulse in the stop-and-go walk: the turn-around on the \
 spot (the device held 0.35 m ahead swings about the walker, unless they pivot about it — the \
 simulated rescuer does, the firmware cannot tell), the half-step credit of an overdue step and \
