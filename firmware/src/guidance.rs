@@ -29,10 +29,17 @@
 //!   arrow alternates to either side of the mean along the belief's most uncertain
 //!   horizontal axis (the classical bracketing): a single spot cannot separate the
 //!   transmitter's position from its moment.
-//! - [`Status::Probe`]: the horizontal distance to the mean is within
-//!   `max(probe_radius, σ_h)` and `3σ_h ≤ probe_radius` on
-//!   [`GuidanceConfig::probe_confirm_pulses`] consecutive pulses (or the receiver has
-//!   bracketed the mean for [`GuidanceConfig::probe_timeout_pulses`] pulses): probe here.
+//! - [`Status::Probe`]: the issue's rule, "probe here when the horizontal distance is
+//!   below the estimate's uncertainty": the horizontal distance to the mean is within
+//!   `max(probe_reach, σ_h)` (the rescuer probes at the mean the arrow points to, within
+//!   reach), and either `3σ_h ≤ probe_radius` on [`GuidanceConfig::probe_confirm_pulses`]
+//!   consecutive pulses, or σ_h has levelled off — the σ actually reached, no longer
+//!   shrinking by 10 % over [`GuidanceConfig::probe_plateau_pulses`] pulses, and at most
+//!   [`GuidanceConfig::probe_plateau_max_sigma_m`] — (or, the backstop, the receiver has
+//!   been over the mean for [`GuidanceConfig::probe_timeout_pulses`] pulses): probe here.
+//!   Near the victim the belief's σ levels off at ≈ 0.1 m (the dead reckoning of the
+//!   stop-and-go walk), above the fixed `probe_radius / 3`: waiting for the fixed bound
+//!   cost most rescues the whole timeout without sharpening the estimate.
 //! - [`Status::NoSignal`]: no usable pulse.
 //!
 //! Angles: bearings in `G` are measured from north toward west (counter-clockwise seen
@@ -99,6 +106,20 @@ pub struct GuidanceConfig {
     pub probe_timeout_pulses: u8,
     /// Offset (m) to either side of the mean when bracketing it (about one step).
     pub bracket_m: f32,
+    /// Horizontal distance (m) to the mean within which "probe here" may be given: the
+    /// rescuer probes at the mean the display points to, within reach without a step.
+    pub probe_reach_m: f32,
+    /// Over the mean, "probe here" once the belief's horizontal σ has not fallen below
+    /// [`probe_plateau_ratio`](Self::probe_plateau_ratio) × its best for this many
+    /// pulses: standing and bracketing no longer sharpen it (0: never).
+    pub probe_plateau_pulses: u8,
+    /// Relative decrease of the horizontal σ that counts as progress for
+    /// [`probe_plateau_pulses`](Self::probe_plateau_pulses).
+    pub probe_plateau_ratio: f32,
+    /// Largest horizontal σ (m) at which a plateau may end the search: a wider belief
+    /// that stopped shrinking is not trusted for the probe (a filter gone off track also
+    /// stops shrinking).
+    pub probe_plateau_max_sigma_m: f32,
     /// Receiver height above the snow (m): the displayed depth is the burial depth below
     /// the surface, `−p_z − receiver_height`.
     pub receiver_height_m: f32,
@@ -132,6 +153,10 @@ impl Default for GuidanceConfig {
             probe_confirm_pulses: 2,
             probe_timeout_pulses: 16,
             bracket_m: 0.5,
+            probe_reach_m: 0.5,
+            probe_plateau_pulses: 6,
+            probe_plateau_ratio: 0.9,
+            probe_plateau_max_sigma_m: 0.15,
             receiver_height_m: 1.0,
             sigma_bkg: 2.59e-9,
             flux_memory_m: 3.0,
@@ -203,6 +228,12 @@ pub struct Guidance {
     probe_count: u8,
     /// Pulses spent over the mean (bracketing).
     over_mean: u8,
+    /// Smallest horizontal σ (m) seen over the mean, and the pulses since it was.
+    best_sigma: f32,
+    since_best_sigma: u8,
+    /// Consecutive pulses with the mean beyond the bracketing span: two end the stay over
+    /// the mean (one is the estimate jumping, not the rescuer leaving).
+    far_pulses: u8,
     /// Current bracketing offset direction from the mean (unit, horizontal, in `G`,
     /// which is north-aligned, so it stays valid as the receiver moves).
     bracket_dir: Option<[f32; 2]>,
@@ -225,6 +256,9 @@ impl Guidance {
             localized: false,
             probe_count: 0,
             over_mean: 0,
+            best_sigma: f32::MAX,
+            since_best_sigma: 0,
+            far_pulses: 0,
             bracket_dir: None,
             probing: false,
             lift_pulses: 0,
@@ -267,6 +301,9 @@ impl Guidance {
             self.probing = false;
             self.probe_count = 0;
             self.over_mean = 0;
+            self.best_sigma = f32::MAX;
+            self.since_best_sigma = 0;
+            self.far_pulses = 0;
             self.lift_pulses = 0;
             self.bracket_dir = None;
         }
@@ -397,16 +434,28 @@ impl Guidance {
             out.depth_m = Some((-e.p.z - c.receiver_height_m).max(0.0));
         }
         let sure = 3.0 * sigma_h <= c.probe_radius_m;
-        let over = dist_h <= c.probe_radius_m.max(sigma_h);
+        // The issue's rule: the horizontal distance is below the estimate's uncertainty
+        // (or within reach of the probe).
+        let over = dist_h <= c.probe_reach_m.max(sigma_h);
         if over && sure {
             self.probe_count = self.probe_count.saturating_add(1);
         } else {
             self.probe_count = 0;
         }
+        let beyond = dist_h > 2.0 * c.bracket_m + c.probe_reach_m;
+        self.far_pulses = if beyond {
+            self.far_pulses.saturating_add(1)
+        } else {
+            0
+        };
+        if self.far_pulses >= 2 {
+            self.over_mean = 0;
+            self.best_sigma = f32::MAX;
+            self.since_best_sigma = 0;
+        }
+        let plateau = !beyond && self.sigma_plateau(over, sigma_h);
         if over {
             self.over_mean = self.over_mean.saturating_add(1);
-        } else if dist_h > 2.0 * c.bracket_m + c.probe_radius_m {
-            self.over_mean = 0;
         }
         // Depth (range) pinned by the scale only: ask for a lift first.
         let sigma_z = libm::sqrtf(e.cov[(2, 2)].max(0.0));
@@ -418,6 +467,7 @@ impl Guidance {
             self.lift_pulses = self.lift_pulses.saturating_add(1);
         } else if self.probe_count >= c.probe_confirm_pulses
             || self.over_mean >= c.probe_timeout_pulses
+            || (over && plateau)
         {
             self.probing = true;
         }
@@ -442,6 +492,26 @@ impl Guidance {
 }
 
 impl Guidance {
+    /// Whether the belief's horizontal σ has stopped shrinking near the mean: the σ
+    /// actually reached, as opposed to the fixed `probe_radius / 3`. Counted while the
+    /// receiver is within the bracketing span of the mean (the fine search's geometry;
+    /// the caller skips pulses beyond it and restarts after two in a row);
+    /// progress is a fall below `probe_plateau_ratio` × the best σ so far.
+    fn sigma_plateau(&mut self, over: bool, sigma_h: f32) -> bool {
+        let c = &self.cfg;
+        if c.probe_plateau_pulses == 0 {
+            return false;
+        }
+        if sigma_h < c.probe_plateau_ratio * self.best_sigma {
+            self.best_sigma = sigma_h;
+            self.since_best_sigma = 0;
+        } else {
+            self.since_best_sigma = self.since_best_sigma.saturating_add(1);
+        }
+        over && sigma_h <= c.probe_plateau_max_sigma_m
+            && self.since_best_sigma >= c.probe_plateau_pulses
+    }
+
     /// The side of the mean to bracket toward: along the belief's most uncertain axis
     /// `axis`, on the side of the previous bracketing point until the receiver has
     /// reached it (within the probe radius), then the other side. Turning to the other
@@ -687,12 +757,12 @@ mod tests {
             Some(est(Vec3::new(30.0, 0.0, -2.0), 2.0)),
         ));
         assert_eq!(o.status, Status::Localized);
-        // Close but 0.5 m off: not yet.
+        // Close but 0.7 m off (beyond reach): not yet.
         let o = g.update(&input(
             h,
             1.0,
             0.0,
-            Some(est(Vec3::new(0.5, 0.0, -2.0), 0.05)),
+            Some(est(Vec3::new(0.7, 0.0, -2.0), 0.05)),
         ));
         assert_eq!(o.status, Status::Localized);
         // Within 0.3 m and 3σ = 0.15 m: first pulse confirms, the second probes.
@@ -789,8 +859,97 @@ mod tests {
             n += 1;
         }
         assert_eq!(last, Status::Probe);
-        // Three pulses over the mean before the loop (a, b, d).
-        assert_eq!(n + 3, usize::from(cfg.probe_timeout_pulses));
+        // The pulses before the loop that were within reach of the mean count too (a, b
+        // and d; c if the bracketing point lay within reach).
+        let before = [a, b, c, d]
+            .iter()
+            .filter(|o| {
+                o.horizontal_m
+                    .is_some_and(|h| h <= cfg.probe_reach_m.max(0.4))
+            })
+            .count();
+        assert_eq!(n + before, usize::from(cfg.probe_timeout_pulses));
+    }
+
+    /// Localizes a fresh guidance (a concentrated belief 30 m away).
+    fn localized(cfg: GuidanceConfig) -> Guidance {
+        let mut g = Guidance::new(cfg);
+        let h = Vec3::new(1e-4, 0.0, 0.0);
+        let o = g.update(&input(
+            h,
+            1.0,
+            0.0,
+            Some(est(Vec3::new(30.0, 0.0, -2.0), 2.0)),
+        ));
+        assert_eq!(o.status, Status::Localized);
+        g
+    }
+
+    /// Pulses standing over a mean 0.2 m away until "probe here" (at most 40), with the
+    /// horizontal σ of pulse k given by `sigma(k)`.
+    fn pulses_to_probe(g: &mut Guidance, sigma: impl Fn(usize) -> f32) -> Option<usize> {
+        let h = Vec3::new(1e-4, 0.0, 0.0);
+        (0..40).find(|&k| {
+            let e = est(Vec3::new(0.2, 0.0, -2.0), sigma(k));
+            g.update(&input(h, 0.0, 0.0, Some(e))).status == Status::Probe
+        })
+    }
+
+    #[test]
+    fn a_levelled_off_sigma_probes_before_the_timeout() {
+        let cfg = GuidanceConfig {
+            probe_timeout_pulses: 30,
+            ..GuidanceConfig::default()
+        };
+        let n = usize::from(cfg.probe_plateau_pulses);
+        // σ stuck at 0.12 m (3σ > the 0.3 m probe radius, below the plateau bound):
+        // "probe here" once it has not shrunk for `probe_plateau_pulses` pulses — the
+        // first pulse sets the best σ, so the probe comes on pulse index n.
+        let mut g = localized(cfg);
+        assert_eq!(pulses_to_probe(&mut g, |_| 0.12), Some(n));
+        // Shrinking by 15 % every second pulse until pulse 4, then level at 0.101 m: the
+        // plateau counts from pulse 4.
+        let mut g = localized(cfg);
+        let shrinking = |k: usize| 0.14 * libm::powf(0.85, (k / 2) as f32).max(0.101 / 0.14);
+        let k = pulses_to_probe(&mut g, shrinking).unwrap_or(usize::MAX);
+        assert_eq!(k, 4 + n, "the last progress on pulse 4");
+        // A wide belief that stopped shrinking is not trusted: only the timeout probes.
+        let mut g = localized(cfg);
+        assert_eq!(
+            pulses_to_probe(&mut g, |_| 0.2),
+            Some(usize::from(cfg.probe_timeout_pulses) - 1)
+        );
+        // Disabled: the timeout again.
+        let mut g = localized(GuidanceConfig {
+            probe_plateau_pulses: 0,
+            ..cfg
+        });
+        assert_eq!(
+            pulses_to_probe(&mut g, |_| 0.12),
+            Some(usize::from(cfg.probe_timeout_pulses) - 1)
+        );
+    }
+
+    #[test]
+    fn one_jump_of_the_estimate_does_not_restart_the_timeout() {
+        let cfg = GuidanceConfig::default();
+        let timeout = usize::from(cfg.probe_timeout_pulses);
+        // A wide belief (no plateau probe) 0.2 m away, except on the pulses in `jumps`,
+        // where it is 3 m away (beyond the bracketing span): the pulse of the probe.
+        let run = |jumps: &[usize]| {
+            let mut g = localized(cfg);
+            let h = Vec3::new(1e-4, 0.0, 0.0);
+            (0..60).find(|k| {
+                let x = if jumps.contains(k) { 3.0 } else { 0.2 };
+                let e = est(Vec3::new(x, 0.0, -2.0), 0.2);
+                g.update(&input(h, 0.0, 0.0, Some(e))).status == Status::Probe
+            })
+        };
+        assert_eq!(run(&[]), Some(timeout - 1));
+        // One jump: that pulse is not over the mean, the count goes on.
+        assert_eq!(run(&[5]), Some(timeout));
+        // Two in a row: the rescuer left, the count starts again after them.
+        assert_eq!(run(&[5, 6]), Some(7 + timeout - 1));
     }
 
     #[test]

@@ -202,7 +202,7 @@ impl Phase {
     /// The phase shown by one pulse's display.
     fn of(row: &PulseRow) -> Phase {
         let d = &row.display;
-        let probe_radius = f64::from(GuidanceConfig::default().probe_radius_m);
+        let probe_reach = f64::from(GuidanceConfig::default().probe_reach_m);
         match d.status {
             Status::NoSignal => Phase::NoSignal,
             Status::FluxLine => Phase::FluxLine,
@@ -211,7 +211,7 @@ impl Phase {
                 let h = d.horizontal_m.map_or(f64::MAX, f64::from);
                 let sig = d.uncertainty_m.map_or(0.0, f64::from);
                 let walk = d.walk_m.map_or(f64::MAX, f64::from);
-                if h <= probe_radius.max(sig) {
+                if h <= probe_reach.max(sig) {
                     Phase::OverMean
                 } else if walk < FINE_WALK_M {
                     Phase::FineApproach
@@ -752,22 +752,43 @@ and trapped the rescuer on a few metres of flux line until the signal happened t
 filter's initialization threshold (10 σ_bkg). The flip now needs a significant decrease (2 σ \
 of one reading, ICRA eq. 10); walking the wrong way along a flux line makes |H| ∝ r⁻³ fall \
 fast, and near the dipole's equator either way leads in.\n\
-- **Fine search (the last 2 m).** It takes about 20 pulses where the ideal walk takes about \
-2, and it is most of the gap to 1.10× ideal. The receiver's horizontal σ levels off at \
-0.1–0.2 m at 2–4 m range and rarely meets the probe rule's 3σ ≤ 0.3 m, so most probes come \
-from the 16-pulse timeout over the mean. The dead reckoning adds 0.2–0.6 m σ per pulse in the \
-stop-and-go walk: the turn-around on the spot (the device held 0.35 m ahead swings about the \
-walker, unless they pivot about it — the simulated rescuer does, the firmware cannot tell), \
-the half-step credit of an overdue step and each walk's start-up step. Bracketing now keeps \
-one side until it is reached (it used to flip sides on every pulse, turning the rescuer \
-around), and an interval stood through carries the hand's sway only.\n\
+- **Flux line: the switch to the mean is not late.** Of the ≈ 23 flux-line pulses per \
+rescue (seeds 1–100, calibrated) ≈ 18 come before the mixture exists — the filter starts at \
+a pulse of |H| ≥ 10 σ_bkg (the estimator's `init_snr`) — and ≈ 5 after it; the IROS \
+Mahalanobis switch (receiver outside the 3σ ellipse, belief concentrated) follows within a \
+few pulses. Relaxing it (d² ≥ 4, or a belief twice as wide) gained under one pulse.\n\
+- **Fine search (the last 2 m).** It took about 20 pulses where the ideal walk takes about \
+2. The receiver's horizontal σ levels off at ≈ 0.1 m at 2–4 m range and rarely met the old \
+probe rule's fixed 3σ ≤ 0.3 m, so most probes came from the 16-pulse timeout over the mean, \
+without a sharper estimate at the end. The probe rule is now the issue's: the horizontal \
+distance to the mean within the estimate's uncertainty or within reach (0.5 m), and either \
+3σ ≤ 0.3 m on two pulses or the σ actually reached — no 10 % progress over 6 pulses, and at \
+most 0.15 m; one jump of the estimate beyond the bracketing span no longer restarts the \
+16-pulse count. This halved the fine search (seeds 1–100, calibrated: 13.7 + 8.1 → 5.5 + 5.9 \
+pulses; steps / ideal median 1.55 → 1.28, uncalibrated 1.64 → 1.38) and removed most \
+failures (calibrated 4 → 1, uncalibrated 14 → 4; seeds 1000–1099: 3 → 1, 12 → 3). The \
+median probe-point error stayed within the spread between seed ranges (0.076–0.111 m over \
+the four medians before, 0.089–0.102 m after); the largest errors moved both ways (seeds \
+1–100 calibrated 0.50 → 0.75 m, seeds 1000–1099 1.51 → 1.08 m), and the rescuer now stands \
+up to 0.5 m from the probe point (median 0.18 → 0.24 m). The remaining ≈ 11 pulses are the \
+step-by-step walk (each stop, pulse and 0.5 s reading lag costs ≈ 2 pulses; turning round on \
+the spot after an overshoot ≈ 3) and the estimate's jumps of 0.2–0.6 m as the receiver passes \
+over the victim. Wider bracketing (±1 m instead of ±0.5 m) was tried: the σ at the probe did \
+not shrink (0.087 vs 0.088 m) and the uncalibrated rescues got slower, so it stays at ±0.5 m. \
+Also tried and not kept: starting the bracketing on the far side of the mean (no turn-round on \
+arrival; under 0.3 pulses gained) and counting the timeout only within max(0.3 m, σ) of the \
+mean (more probe errors above 0.2 m). \
+The dead reckoning adds 0.2–0.6 m σ per pulse in the stop-and-go walk: the turn-around on the \
+spot (the device held 0.35 m ahead swings about the walker, unless they pivot about it — the \
+simulated rescuer does, the firmware cannot tell), the half-step credit of an overdue step and \
+each walk's start-up step.\n\
 - **Probe-point error.** At \"probe here\" the error tracks the receiver's own horizontal σ \
 (the consistency row: a median near the Rayleigh 1.18 means a consistent belief, the tail \
-does not): the error is the floor of the belief, not a bias of the probe rule. At a standing \
-receiver the estimate still jumps by 0.2–0.5 m between pulses while the mixture splits toward \
-its capacity. The 0.05 m / 0.20 m targets need the belief near the victim to shrink further: \
-less turn noise in the dead reckoning, and more baseline than ±0.5 m bracketing at 2–4 m \
-range (one spot cannot separate position from moment) — the open item.\n";
+does not): the error is the floor of the belief, not a bias of the probe rule. The largest \
+errors come from the 16-pulse timeout with σ still 0.2–0.4 m, or from a belief that is \
+confidently off (error ≫ σ), which no rule on σ can see. The 0.05 m / 0.20 m targets need \
+the belief near the victim to shrink to ≈ 0.04 m and stay consistent — an estimator matter \
+(its update near the victim, the dead reckoning's turn noise), the open item.\n";
 
 const PROTOCOL: &str = "\
 Protocol (ICRA 2006 §VI): per seed a victim 40–70 m (horizontally) from the start at a random \
