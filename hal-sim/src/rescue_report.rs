@@ -793,8 +793,8 @@ the belief near the victim to shrink to ≈ 0.04 m and stay consistent — an es
 28, 83, 97; 1037, 1038, 1082, 1077, 1062), traced with `--trace`, and every seed of both \
 ranges compared at two moments: at the pulse that first showed \"probe here\" and at the end, \
 where the report takes the estimate (the rescuer reads the display 0.5 s late and keeps \
-walking meanwhile, and the estimator keeps updating). Three classes: \
-(1) *the estimate moves after the decision* — 15 of the 51 runs above 0.20 m (seeds 1–100: \
+walking meanwhile). Three classes: \
+(1) *the report's own bookkeeping* — 15 of the 51 runs above 0.20 m (seeds 1–100: \
 9 of 26; 1000–1099: 6 of 25) were within 0.20 m at the decision, e.g. seed 28 0.075 → 0.505 m, \
 seed 39 0.029 → 0.446 m, seed 8 0.32 → 0.68 m, seed 1037 0.42 → 0.89 m; at the decision the \
 error is max / mean / median 0.851 / 0.117 / 0.075 m with 18 runs above 0.20 m (seeds 1–100; \
@@ -822,11 +822,15 @@ victims — > 0.20 m in 19 / 23 runs, medians 0.081 / 0.080 m, but max 0.923 / 0
 uncalibrated, max 0.859 m (was 0.561) on 1–100 and median 0.120 m (was 0.097) on 1000–1099: \
 the tail \
 moves to other seeds rather than shrinking. \
-What is left: class (1) is a product fault as much as a statistic — after \"probe here\" the \
-display's point keeps moving under the rescuer. The fix is to latch the probe point at the \
-decision (the receiver applying only the dead reckoning to the target's belief while the \
-probe is shown, releasing it when the search restarts); it spans the application and victim \
-bank (`app.rs`, the bank's step), outside this change. Classes (2)–(3) need a sharper belief \
+Class (1) is not the estimator: latching the belief at the decision (the receiver applying \
+only the dead reckoning to the target's mixture while \"probe here\" is shown) changed no \
+number of either report — no pulse arrives between the decision and the end. The \
+difference is the end-of-run error in `closed_loop::run`: it adds the estimate, a vector \
+relative to the receiver at the last pulse, to the receiver's position at the end, up to \
+0.5 s of walking later (`window.middle()` instead of the pose of that pulse, which the \
+per-pulse rows use); taking the last row's `victim_est` instead gives the at-decision \
+numbers above. That file (the rescuer simulation) is outside this change; the fix and a \
+regeneration of every closed-loop report belong together. Classes (2)–(3) need a sharper belief \
 over deep victims (a longer vertical baseline: the lift, asked for only above 0.2 m depth σ; \
 or fewer, wider components at 2–4 m range), not a different rule on σ.\n";
 
