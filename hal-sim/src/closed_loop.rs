@@ -394,11 +394,6 @@ impl PoseWindow {
     pub(crate) fn last(&self) -> Option<&Pose> {
         self.poses.back()
     }
-
-    /// The middle pose (the tick whose IMU sample was last produced).
-    pub(crate) fn middle(&self) -> Option<&Pose> {
-        self.poses.get(1)
-    }
 }
 
 /// Receiver pose at one tick.
@@ -734,10 +729,13 @@ pub fn run(
         snapshots.push(snapshot(&rx, r.t, &V3::from(r.rx), r.display.status));
     }
     let final_est = match cfg.policy {
-        Policy::Receiver => rx.estimate().map(|e| {
-            let rx_p = window.middle().map_or(end, |p| p.p);
-            rx_p + V3::new(f64::from(e.p.x), f64::from(e.p.y), f64::from(e.p.z))
-        }),
+        // The estimate is relative to the receiver at its last pulse (robocentric G_k):
+        // placed from that pulse's pose, as each row is — not from where the rescuer
+        // stands when the loop ends, up to a reading lag of walking later.
+        Policy::Receiver => rx
+            .estimate()
+            .and_then(|_| rows.last().and_then(|r| r.victim_est))
+            .map(V3::from),
         // The classical search's estimate is where it found the maximum.
         Policy::DirectionalSearch => ds.found.map(|f| V3::new(f[0], f[1], tx_p.z)),
     };

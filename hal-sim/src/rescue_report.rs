@@ -791,23 +791,30 @@ the belief near the victim to shrink to ≈ 0.04 m and stay consistent — an es
 (its update near the victim, the dead reckoning's turn noise), the open item.\n\
 - **The tail, pulse by pulse (issue 6).** The worst seeds of both ranges (calibrated: 20, 8, \
 28, 83, 97; 1037, 1038, 1082, 1077, 1062), traced with `--trace`, and every seed of both \
-ranges compared at two moments: at the pulse that first showed \"probe here\" and at the end, \
-where the report takes the estimate (the rescuer reads the display 0.5 s late and keeps \
-walking meanwhile). Three classes: \
-(1) *the report's own bookkeeping* — 15 of the 51 runs above 0.20 m (seeds 1–100: \
-9 of 26; 1000–1099: 6 of 25) were within 0.20 m at the decision, e.g. seed 28 0.075 → 0.505 m, \
-seed 39 0.029 → 0.446 m, seed 8 0.32 → 0.68 m, seed 1037 0.42 → 0.89 m; at the decision the \
-error is max / mean / median 0.851 / 0.117 / 0.075 m with 18 runs above 0.20 m (seeds 1–100; \
-1000–1099: 0.834 / 0.125 / 0.081 m, 19 runs) against 0.852 / 0.153 / 0.084 m, 26 runs \
-(0.887 / 0.151 / 0.089 m, 25 runs) at the end; \
+ranges compared at two moments: at the pulse that first showed \"probe here\" and at the end \
+of the run. Three classes: \
+(1) *the report's own bookkeeping* (fixed): the end-of-run error in `closed_loop::run` added \
+the estimate, a vector relative to the receiver at its last pulse (robocentric G_k), to the \
+receiver's position when the loop ended, up to a 0.5 s reading lag of walking later; 15 of \
+the 51 runs above 0.20 m (seeds 1–100: 9 of 26; 1000–1099: 6 of 25) were within 0.20 m at \
+the decision (seed 28 0.075 → 0.505 m, seed 39 0.029 → 0.446 m, seed 1037 0.42 → 0.89 m). \
+Latching the belief at the decision changed no number — no pulse arrives between the \
+decision and the end — so the estimate is now placed from its own pulse's pose, as the \
+per-pulse rows always were. Calibrated probe-point error max / mean / median before → after \
+the fix: seeds 1–100 0.852 / 0.153 / 0.084 → 0.851 / 0.117 / 0.075 m (> 0.20 m: 26 → 18 \
+runs), seeds 1000–1099 0.887 / 0.151 / 0.089 → 0.834 / 0.125 / 0.080 m (25 → 19); without \
+calibration (lift) 0.561 / 0.156 / 0.102 → 0.559 / 0.129 / 0.094 m and 0.943 / 0.161 / 0.097 \
+→ 0.441 / 0.121 / 0.081 m; steps and failures unchanged. The other closed-loop reports \
+(classic, baselines, multi's single-victim line) were regenerated with it. \
 (2) *the 16-pulse timeout at σ 0.2–0.4 m* over deep victims (1.5–2.9 m, 2.7–3.9 m from the \
-receiver) — 12 of the 18 and 6 of the 19 errors above 0.20 m at the decision; the trace shows \
-the mixture (20–80 Gaussians, split at this range) with σ_h flat at 0.2–0.35 m for 20–30 \
-pulses and its mean wandering 0.2–0.7 m from pulse to pulse, roughly as wide as its σ; \
+receiver) — 12 of the 18 and 6 of the 19 errors above 0.20 m; the trace shows the mixture \
+(20–80 Gaussians, split at this range) with σ_h flat at 0.2–0.35 m for 20–30 pulses and its \
+mean wandering 0.2–0.7 m from pulse to pulse, roughly as wide as its σ; \
 (3) *confidently off* (error > 3σ at the decision): 1 and 3 runs, shallow victims (seeds \
 e.g. 1062, 1044: 0.4 m deep). In the traced seeds the error oscillates around the victim \
-rather than settling on a wrong mode or sign. Tried, measured (calibrated, seeds 1–100 / 1000–1099, `rescue-report --tries 100 \
-[--first-seed 1000] --calibrated-only`), not kept: \
+rather than settling on a wrong mode or sign. Tried, measured (calibrated, seeds 1–100 / \
+1000–1099, `rescue-report --tries 100 [--first-seed 1000] --calibrated-only`, before the \
+bookkeeping fix), not kept: \
 (a) the 16-pulse timeout only at σ_h ≤ 0.2 m, else bracketing on to 32 pulses — max 0.896 / \
 1.139 m, > 0.20 m in 25 / 27 runs, one more failure (seed 28): σ does not shrink with more \
 bracketing, so waiting only draws another sample of the wandering mean; \
@@ -820,21 +827,10 @@ is not what keeps σ at 0.2–0.3 m; \
 (d) bracketing offset max(0.5 m, 0.25 × range to the mean) for a wider baseline over deep \
 victims — > 0.20 m in 19 / 23 runs, medians 0.081 / 0.080 m, but max 0.923 / 0.948 m and, \
 uncalibrated, max 0.859 m (was 0.561) on 1–100 and median 0.120 m (was 0.097) on 1000–1099: \
-the tail \
-moves to other seeds rather than shrinking. \
-Class (1) is not the estimator: latching the belief at the decision (the receiver applying \
-only the dead reckoning to the target's mixture while \"probe here\" is shown) changed no \
-number of either report — no pulse arrives between the decision and the end. The \
-difference is the end-of-run error in `closed_loop::run`: it adds the estimate, a vector \
-relative to the receiver at the last pulse, to the receiver's position at the end, up to \
-0.5 s of walking later (`window.middle()` instead of the pose of that pulse, which the \
-per-pulse rows use); taking the last row's `victim_est` instead (tried, not committed) gives \
-the at-decision numbers above with steps and failures unchanged, and without calibration \
-(lift) 0.559 / 0.129 / 0.094 m, 19 runs above 0.20 m (was 0.561 / 0.156 / 0.102 m, 27) and on \
-1000–1099 0.441 / 0.121 / 0.081 m (was 0.943 / 0.161 / 0.097 m). That file (the rescuer simulation) is outside this change; the fix and a \
-regeneration of every closed-loop report belong together. Classes (2)–(3) need a sharper belief \
-over deep victims (a longer vertical baseline: the lift, asked for only above 0.2 m depth σ; \
-or fewer, wider components at 2–4 m range), not a different rule on σ.\n";
+the tail moves to other seeds rather than shrinking. \
+Classes (2)–(3) need a sharper belief over deep victims (a longer vertical baseline: the \
+lift, asked for only above 0.2 m depth σ; or fewer, wider components at 2–4 m range), not a \
+different rule on σ.\n";
 
 const PROTOCOL: &str = "\
 Protocol (ICRA 2006 §VI): per seed a victim 40–70 m (horizontally) from the start at a random \
