@@ -384,6 +384,9 @@ pub fn run_with(
     let mut marks: Vec<MarkEvent> = Vec::new();
     let mut found_t: Vec<Option<(f64, f64)>> = vec![None; sc.txs.len()];
     let mut probing_since: Option<f64> = None;
+    // The receiver's position at each recent pulse the estimators took: a victim's estimate
+    // is relative to the receiver at that victim's last pulse (robocentric G_k).
+    let mut pulse_poses: VecDeque<(f64, V3)> = VecDeque::with_capacity(PULSE_POSES + 1);
     let mut idle_since: Option<f64> = None;
     let mut first_t: Option<f64> = None;
     let mut list_max = 0u8;
@@ -458,6 +461,10 @@ pub fn run_with(
                 trace_pulse(&rx, centre, i, src, &res, other_before);
             }
             if res.is_ok() {
+                pulse_poses.push_back((centre, p1.p));
+                if pulse_poses.len() > PULSE_POSES {
+                    pulse_poses.pop_front();
+                }
                 tally[i].pulses += 1;
                 first_t.get_or_insert(centre);
                 on_event(Event::Pulse(centre), &rx);
@@ -474,11 +481,12 @@ pub fn run_with(
             person.w_target = 0.0;
             if p1.t - t0 >= PROBE_S {
                 probing_since = None;
+                let origin = pose_at_pulse(&pulse_poses, f64::from(display.t_s)).unwrap_or(p1.p);
                 let probe = rx.estimate().map(|e| {
                     [
-                        p1.p.x + f64::from(e.p.x),
-                        p1.p.y + f64::from(e.p.y),
-                        p1.p.z + f64::from(e.p.z),
+                        origin.x + f64::from(e.p.x),
+                        origin.y + f64::from(e.p.y),
+                        origin.z + f64::from(e.p.z),
                     ]
                 });
                 if let (Some(probe), Ok(number)) = (probe, rx.mark()) {
@@ -653,6 +661,20 @@ fn trace_state(rx: &Receiver, txs: &[Transmitter], p: &V3, t: f64) {
         d.horizontal_m,
         rows.join("; ")
     );
+}
+
+/// Recent pulse poses kept for placing a victim's estimate (a victim is heard at least
+/// every 1.3 s; 64 pulses of up to 4 victims span ≥ 16 s).
+const PULSE_POSES: usize = 64;
+
+/// The receiver's position at the pulse of time `t` (the target's last pulse, as the
+/// display reports it), if still kept.
+fn pose_at_pulse(poses: &VecDeque<(f64, V3)>, t: f64) -> Option<V3> {
+    poses
+        .iter()
+        .rev()
+        .find(|(tp, _)| (tp - t).abs() < 1e-3)
+        .map(|&(_, p)| p)
 }
 
 /// The nearest true victim not found yet within [`FOUND_RADIUS_M`] of `probe`.
