@@ -394,7 +394,7 @@ impl VictimBank {
     /// with the motion since that victim's last pulse composed as [`VictimBank::step`]
     /// would) takes `src` — the front end gave its transmitter a new track id (after a
     /// long overlap or silence). Only a localized mixture qualifies (see
-    /// [`Victim::localized`]); among several, the one of most pulses. Returns its slot.
+    /// `Victim::localized`); among several, the one of most pulses. Returns its slot.
     /// Read-only but for the relabelling.
     pub fn reassociate(
         &mut self,

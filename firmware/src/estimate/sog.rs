@@ -11,9 +11,9 @@
 //! # Per step (IROS Algorithm 1)
 //! For every Gaussian: predict by augmenting the displacement, EKF update with the
 //! pulse (sign chosen per component), compose into `G_k`
-//! ([`super::gaussian::step_gaussian`]), then (robocentric mode, beyond the paper) a
+//! (`gaussian::step_gaussian`), then (robocentric mode, beyond the paper) a
 //! linear update of the orientation with the IMU's absolute attitude of `R_k`
-//! ([`super::gaussian::attitude_update`]); then normalize the weights in the log domain
+//! (`gaussian::attitude_update`); then normalize the weights in the log domain
 //! (eq. 17), check divergence, prune, merge near-duplicates and split where needed
 //! (heaviest components first).
 
