@@ -178,6 +178,32 @@ pub struct SplitDisplacement {
     pub standing: bool,
 }
 
+impl SplitDisplacement {
+    /// Before the first IMU sample: an unknown cut (σ 1 m, 0.5 rad), no step in progress.
+    fn unknown() -> Self {
+        let zero = Displacement::still(0.0, 0.0);
+        Self {
+            cut: Displacement::still(1.0, 0.5),
+            partial: zero,
+            back: zero,
+            standing: false,
+        }
+    }
+}
+
+/// An accelerometer lift (`(dz, var)`: the world-vertical excursion and its variance)
+/// attached to a displacement as an absolute, unscaled part, in the axes of the interval's
+/// start `R_{k-1}`.
+fn attach_lift(lift: Option<(f32, f32)>, interval: &Interval, d: &mut Displacement) {
+    let Some((dz, var)) = lift else { return };
+    // The world-vertical excursion in R_{k-1} axes: R_{k-1}ᵀ e_z = row 2 of R_{k-1}.
+    let r0 = interval.start_rotation();
+    let e = Vec3::new(r0[(2, 0)], r0[(2, 1)], r0[(2, 2)]);
+    d.absolute = e * dz;
+    // Rank one, plus 1 mm² so that the correlations stay within [-1, 1] in f32.
+    d.absolute_cov = e * e.transpose() * var.max(0.0) + Mat3::identity() * 1e-6;
+}
+
 /// Where a pulse cuts the running interval.
 struct Cut {
     t: f32,
@@ -371,14 +397,7 @@ impl Motion {
             closing.add_stride(c.t, c.partial, c.yaw_now, c.var, &noise);
         }
         let mut d = closing.close(c.t, &c.rk, &noise, c.bias_var);
-        if let Some((dz, var)) = self.lift.take() {
-            // The world-vertical excursion in R_{k-1} axes: R_{k-1}ᵀ e_z = row 2 of R_{k-1}.
-            let r0 = closing.start_rotation();
-            let e = Vec3::new(r0[(2, 0)], r0[(2, 1)], r0[(2, 2)]);
-            d.absolute = e * dz;
-            // Rank one, plus 1 mm² so that the correlations stay within [-1, 1] in f32.
-            d.absolute_cov = e * e.transpose() * var.max(0.0) + Mat3::identity() * 1e-6;
-        }
+        attach_lift(self.lift.take(), &closing, &mut d);
         let mut next = Interval::new(c.t, c.rk);
         if c.partial > 0.0 {
             next.add_stride(c.t, -c.partial, c.yaw_now, c.var, &noise);
@@ -398,21 +417,11 @@ impl Motion {
     pub fn take_split(&mut self, t_pulse: f32) -> SplitDisplacement {
         let zero = Displacement::still(0.0, 0.0);
         let Some(c) = self.cut_at(t_pulse) else {
-            return SplitDisplacement {
-                cut: Displacement::still(1.0, 0.5),
-                partial: zero,
-                back: zero,
-                standing: false,
-            };
+            return SplitDisplacement::unknown();
         };
         let noise = self.cfg.noise;
         let Some(run) = self.run.as_mut() else {
-            return SplitDisplacement {
-                cut: Displacement::still(1.0, 0.5),
-                partial: zero,
-                back: zero,
-                standing: false,
-            };
+            return SplitDisplacement::unknown();
         };
         let mut closing = run.interval;
         if c.standing {
@@ -433,14 +442,7 @@ impl Motion {
             ..noise
         };
         let mut cut = closing.close(c.t, &c.rk, &floorless, c.bias_var);
-        if let Some((dz, var)) = self.lift.take() {
-            // The world-vertical excursion in R_{k-1} axes: R_{k-1}ᵀ e_z = row 2 of R_{k-1}.
-            let r0 = closing.start_rotation();
-            let e = Vec3::new(r0[(2, 0)], r0[(2, 1)], r0[(2, 2)]);
-            cut.absolute = e * dz;
-            // Rank one, plus 1 mm² so that the correlations stay within [-1, 1] in f32.
-            cut.absolute_cov = e * e.transpose() * var.max(0.0) + Mat3::identity() * 1e-6;
-        }
+        attach_lift(self.lift.take(), &closing, &mut cut);
         run.interval = Interval::new(c.t, c.rk);
         // The partial step carries its own stride errors only (the floors come once per
         // victim interval, see above).
