@@ -553,6 +553,26 @@ pub(crate) struct StepPlan {
     pub(crate) lifts: u32,
 }
 
+/// The simulated world's geomagnetic field (48 µT, 63° inclination), µT.
+pub(crate) fn sim_earth() -> V3 {
+    V3::from(earth_field_ut(48.0, 63.0))
+}
+
+/// The application's configuration in the simulated rescues: the simulated world's
+/// geomagnetic field (48 µT, 63°), the receiver description's noise model in the
+/// estimator and guidance, and the calibrated step length when there is one.
+pub(crate) fn app_config(receiver: &ReceiverConfig, step_length_m: Option<f64>) -> AppConfig {
+    let earth = sim_earth();
+    let mut app = AppConfig::new(
+        Vec3::new(earth.x as f32, earth.y as f32, earth.z as f32),
+        step_length_m.map(|s| s as f32),
+    );
+    app.sog = sog_config(receiver, app.sog);
+    app.guidance.receiver_height_m = app.sog.receiver_height;
+    app.guidance.sigma_bkg = app.sog.sigma_bkg;
+    app
+}
+
 /// Runs one closed-loop rescue; `on_pulse` sees every pulse's row and the receiver.
 pub fn run(
     cfg: &ClosedLoopConfig,
@@ -563,14 +583,8 @@ pub fn run(
     let pulse_noise = receiver_cfg.pulse_noise.clone();
     let imu_noise = receiver_cfg.imu.clone();
     let sc = draw_scenario(cfg, &mut rng, &pulse_noise);
-    let earth = V3::from(earth_field_ut(48.0, 63.0));
-    let mut app = AppConfig::new(
-        Vec3::new(earth.x as f32, earth.y as f32, earth.z as f32),
-        cfg.calibrated.then_some(sc.step_cal as f32),
-    );
-    app.sog = sog_config(&receiver_cfg, app.sog);
-    app.guidance.receiver_height_m = app.sog.receiver_height;
-    app.guidance.sigma_bkg = app.sog.sigma_bkg;
+    let earth = sim_earth();
+    let mut app = app_config(&receiver_cfg, cfg.calibrated.then_some(sc.step_cal));
     if !cfg.lift {
         app.guidance.lift_max_pulses = 0;
     }

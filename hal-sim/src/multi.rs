@@ -29,16 +29,14 @@
 //! a **wrong-victim mark** (a duplicate of a found victim, or nothing there).
 use crate::accuracy::stats;
 use crate::closed_loop::{
-    ClosedLoopConfig, DT, HOLD_HEIGHT_M, PoseWindow, Seen, StepPlan, act, gauss, imu_sample,
-    start_rescuer,
+    ClosedLoopConfig, DT, HOLD_HEIGHT_M, PoseWindow, Seen, StepPlan, act, app_config, gauss,
+    imu_sample, sim_earth, start_rescuer,
 };
 use crate::physics::{V3, rotation_from_rpy};
 use crate::receiver_config::ReceiverConfig;
-use crate::sog_replay::sog_config;
 use crate::transmitter::{CARRIER_HZ, Transmitter, TransmitterSpec};
-use crate::world::earth_field_ut;
 use firmware::Vec3;
-use firmware::app::{AppConfig, Receiver};
+use firmware::app::Receiver;
 use firmware::frontend::TransmitterTracker;
 use firmware::frontend::{OverlapVerdict, overlap_verdict};
 use firmware::guidance::Status;
@@ -354,14 +352,8 @@ pub fn run_with(
     let noise = receiver_cfg.pulse_noise.clone();
     let imu_noise = receiver_cfg.imu.clone();
     let sc = draw_scene(cfg, &mut rng, noise.sigma_bkg_a_per_m);
-    let earth = V3::from(earth_field_ut(48.0, 63.0));
-    let mut app = AppConfig::new(
-        Vec3::new(earth.x as f32, earth.y as f32, earth.z as f32),
-        rc.calibrated.then_some(sc.step_cal as f32),
-    );
-    app.sog = sog_config(&receiver_cfg, app.sog);
-    app.guidance.receiver_height_m = app.sog.receiver_height;
-    app.guidance.sigma_bkg = app.sog.sigma_bkg;
+    let earth = sim_earth();
+    let app = app_config(&receiver_cfg, rc.calibrated.then_some(sc.step_cal));
     let mut rx = Box::new(
         Receiver::new(app).map_err(|e| anyhow::anyhow!("receiver refused its config: {e:?}"))?,
     );
