@@ -18,19 +18,24 @@ def inv3(a):
             [(a3 * a7 - a4 * a6) / det, (a1 * a6 - a0 * a7) / det, (a0 * a4 - a1 * a3) / det]]
 
 
+def relative_truth(truth, t):
+    """True victim position relative to the receiver at `t` (linear between records)."""
+    later = next((k for k, r in enumerate(truth) if r["t"] >= t), len(truth) - 1)
+    a, b = truth[max(later - 1, 0)], truth[later]
+    u = 0.0 if b["t"] <= a["t"] else min(1.0, max(0.0, (t - a["t"]) / (b["t"] - a["t"])))
+    rx = [a["p"][i] + u * (b["p"][i] - a["p"][i]) for i in range(3)]
+    return [b["victims"][0]["p"][i] - rx[i] for i in range(3)]
+
+
 def main():
-    truth = {}
-    for line in open(sys.argv[1]):
-        r = json.loads(line)
-        truth[round(r["t"], 6)] = r
+    truth = [r for r in map(json.loads, open(sys.argv[1])) if r.get("type") == "truth"]
     lines = [json.loads(l) for l in open(sys.argv[2]) if l.strip()]
     with_est = [l for l in lines if l["victims"]]
     if not with_est:
         print(json.dumps({"pulses": len(lines), "estimates": 0}))
         return
     last = with_est[-1]
-    tr = truth[round(last["t"], 6)]
-    rel = [tr["victims"][0]["p"][i] - tr["p"][i] for i in range(3)]
+    rel = relative_truth(truth, last["t"])
     est = last["victims"][0]
     e = [est["p"][i] - rel[i] for i in range(3)]
     cov = [est["cov"][0:3], est["cov"][3:6], est["cov"][6:9]]
