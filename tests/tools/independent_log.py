@@ -12,7 +12,8 @@ are drawn anywhere in 0.8–1.2 s with jitter, the IMU rate can be 50–200 Hz, 
 carries unknown keys and an unknown record type (readers must ignore them), and the
 moment range of the receiver file is the standard's (spec example), not hal-sim's.
 
-Usage: independent_log.py SEED OUT_DIR [--imu-hz HZ]
+Usage: independent_log.py SEED OUT_DIR [--imu-hz HZ] [--stand S] [--on-bearing] [--cut S]
+       [--uncalibrated]
 Writes OUT_DIR/session.jsonl, OUT_DIR/truth.jsonl, OUT_DIR/receiver.json.
 Pure Python (math, random, json): runs anywhere python3 runs.
 """
@@ -170,8 +171,11 @@ def main():
                                     "victims": [{"p": victim, "m": moment}]}) + "\n")
             next_pulse = t + period + rng.uniform(-0.02, 0.02)
         k += 1
+    # --cut S: the receiver was switched to search mode S seconds into the walk.
+    cut = float(sys.argv[sys.argv.index("--cut") + 1]) if "--cut" in sys.argv else 0.0
     for rec in records:
-        session.write(json.dumps(rec) + "\n")
+        if rec["t"] >= cut:
+            session.write(json.dumps(rec) + "\n")
     session.close()
     truth.close()
     calibrated = step_len * (1.0 + rng.gauss(0, 0.02))
@@ -181,6 +185,8 @@ def main():
                         "acc_noise_m_s2": 0.05, "mag_noise_uT": 0.3},
                 "victim_depth_range_m": [0.0, 3.0], "receiver_height_m": 1.0,
                 "pdr": {"step_length_m": calibrated}}
+    if "--uncalibrated" in sys.argv:
+        del receiver["pdr"]
     with open(os.path.join(out_dir, "receiver.json"), "w") as f:
         json.dump(receiver, f)
 
