@@ -22,21 +22,7 @@ pub fn workspace_root() -> PathBuf {
 /// directory of its own, so the build never waits on the lock of the `cargo test` that
 /// runs this, and returns the ELF's path. Panics with the build's output on failure.
 pub fn build_firmware_bin(bin: &str, features: &str) -> PathBuf {
-    let root = workspace_root();
-    let target_dir = root.join("target").join("qemu");
-    let out = Command::new(env!("CARGO"))
-        .current_dir(&root)
-        .args(["build", "-p", "firmware", "--release", "--target", TARGET])
-        .args(["--features", features, "--bin", bin])
-        .env("CARGO_TARGET_DIR", &target_dir)
-        .output()
-        .expect("cargo runs");
-    assert!(
-        out.status.success(),
-        "building {bin} for {TARGET} failed (is the target installed? `rustup target add {TARGET}`; is flip-link? `cargo install flip-link`):\n{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    target_dir.join(TARGET).join("release").join(bin)
+    build_firmware_bin_with_env(bin, features, &[])
 }
 
 /// Like [`build_firmware_bin`] with extra environment variables for the build (e.g. a
@@ -54,10 +40,27 @@ pub fn build_firmware_bin_with_env(bin: &str, features: &str, env: &[(&str, &str
         .expect("cargo runs");
     assert!(
         out.status.success(),
-        "building {bin} for {TARGET} failed:\n{}",
+        "building {bin} for {TARGET} failed (is the target installed? `rustup target add {TARGET}`; is flip-link? `cargo install flip-link`):\n{}",
         String::from_utf8_lossy(&out.stderr)
     );
     target_dir.join(TARGET).join("release").join(bin)
+}
+
+/// The `KEY VALUE` pairs of the lines of `stdout` that start with `prefix` (e.g. a
+/// binary's `budget worst_step 123` lines with prefix `"budget "`); unparsable values are
+/// left out.
+pub fn keyed_values<'a, T: std::str::FromStr>(
+    stdout: &'a str,
+    prefix: &str,
+) -> std::collections::HashMap<&'a str, T> {
+    stdout
+        .lines()
+        .filter_map(|l| l.strip_prefix(prefix))
+        .filter_map(|l| {
+            let (k, v) = l.split_once(' ')?;
+            Some((k, v.trim().parse().ok()?))
+        })
+        .collect()
 }
 
 /// What a QEMU run printed and how it ended.

@@ -5,7 +5,7 @@
 //! stay within the 50 ms budget, 8.4 M instructions at 168 MHz. Measured 7.20 M, a 14 %
 //! margin (`hal-sim/reports/budget.md`; 8.26 M before the iterated update inlined the
 //! component step); the run must also complete without a refused step and fit the MCU's RAM.
-use e2e::{build_firmware_bin, run_in_qemu, section_sizes};
+use e2e::{build_firmware_bin, keyed_values, run_in_qemu, section_sizes};
 use std::collections::HashMap;
 use std::time::Duration;
 
@@ -18,15 +18,7 @@ fn estimator_budget_on_cortex_m4f() {
         "qemu_budget failed:\n{}\n{}",
         run.stdout, run.stderr
     );
-    let budget: HashMap<&str, u64> = run
-        .stdout
-        .lines()
-        .filter_map(|l| l.strip_prefix("budget "))
-        .filter_map(|l| {
-            let (k, v) = l.split_once(' ')?;
-            Some((k, v.trim().parse().ok()?))
-        })
-        .collect();
+    let budget: HashMap<&str, u64> = keyed_values(&run.stdout, "budget ");
     for (k, v) in &budget {
         println!("{k}: {v}");
     }

@@ -8,7 +8,7 @@
 //! leak per pulse is not), and the final estimate within the 1 m of the truth.
 // Test code: a failed unwrap or a panic is a failed test, the right report.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
-use e2e::{build_firmware_bin_with_env, run_in_qemu};
+use e2e::{build_firmware_bin_with_env, keyed_values, run_in_qemu};
 use std::collections::HashMap;
 use std::time::Duration;
 
@@ -22,15 +22,7 @@ fn ten_minutes_of_search_on_cortex_m4f_without_growth_or_drift() {
         "qemu_soak failed:\n{}\n{}",
         run.stdout, run.stderr
     );
-    let soak: HashMap<&str, f64> = run
-        .stdout
-        .lines()
-        .filter_map(|l| l.strip_prefix("soak "))
-        .filter_map(|l| {
-            let (k, v) = l.split_once(' ')?;
-            Some((k, v.trim().parse().ok()?))
-        })
-        .collect();
+    let soak: HashMap<&str, f64> = keyed_values(&run.stdout, "soak ");
     assert_eq!(soak["minutes"], 10.0);
     assert_eq!(soak["pulses"], 600.0, "one pulse a second");
     assert_eq!(soak["pulses_in_display"], 600.0);

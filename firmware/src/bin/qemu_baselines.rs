@@ -185,11 +185,7 @@ fn grid<const NX: usize, const NY: usize>(counter: &mut InstructionCounter) -> b
 
 #[entry]
 fn main() -> ! {
-    stack::paint();
-    let Some(peripherals) = cortex_m::Peripherals::take() else {
-        exit::exit(false)
-    };
-    let mut counter = InstructionCounter::start(peripherals.SYST);
+    let mut counter = InstructionCounter::start_on_painted_stack();
     let c = &mut counter;
     let results = [
         sog::<240>(c),

@@ -140,11 +140,7 @@ fn profile(counter: &mut InstructionCounter) {
 
 #[entry]
 fn main() -> ! {
-    stack::paint();
-    let Some(peripherals) = cortex_m::Peripherals::take() else {
-        exit::exit(false)
-    };
-    let mut counter = InstructionCounter::start(peripherals.SYST);
+    let mut counter = InstructionCounter::start_on_painted_stack();
 
     let r = core::hint::black_box(Vec3::new(12.0, -7.5, 2.25));
     let m = core::hint::black_box(Vec3::new(0.004, 0.011, -0.006));

@@ -160,11 +160,7 @@ fn period(rx: &mut Receiver, walk: &mut Walk, c: &mut InstructionCounter, f: &mu
 
 #[entry]
 fn main() -> ! {
-    stack::paint();
-    let Some(peripherals) = cortex_m::Peripherals::take() else {
-        exit::exit(false)
-    };
-    let mut counter = InstructionCounter::start(peripherals.SYST);
+    let mut counter = InstructionCounter::start_on_painted_stack();
     let mut cfg = AppConfig::new(Vec3::from(EARTH_UT), Some(STEP_LENGTH_M));
     // Diagnostic (build with `SOAK_PIN_SCALE=1`): the scale state nearly pinned to its
     // prior (σ 0.2 % instead of the calibration's 2 %), to tell its drift from the rest.

@@ -38,6 +38,16 @@ impl InstructionCounter {
         Self { syst }
     }
 
+    /// The measuring binaries' start-up: paints the stack (for its high-water mark), takes
+    /// the core peripherals (exits with failure if they are gone) and starts counting.
+    pub fn start_on_painted_stack() -> Self {
+        crate::stack::paint();
+        let Some(peripherals) = cortex_m::Peripherals::take() else {
+            crate::exit::exit(false)
+        };
+        Self::start(peripherals.SYST)
+    }
+
     /// SysTick ticks since [`InstructionCounter::start`].
     pub fn ticks(&mut self) -> u64 {
         loop {
