@@ -17,7 +17,7 @@ use crate::receiver_config::{Pdr, ReceiverConfig};
 use crate::rescuer::{GaitParams, HoldParams, Plan, Rescuer, Waypoint, wrap_pi};
 use crate::routes::{self, Stops};
 use crate::sensors::{ImuModel, PulseModel, SensorConfig, quantize, round_significant};
-use crate::session::{Header, Imu, Pulse, Record, Session, Truth, TruthVictim};
+use crate::session::{Header, Imu, Pulse, Record, Session};
 use crate::transmitter::{Transmitter, TransmitterSpec};
 use crate::world::{World, earth_field_ut};
 use rand::{Rng, SeedableRng};
@@ -287,15 +287,7 @@ pub fn simulate(cfg: &ScenarioConfig) -> Simulation {
     let imu: Vec<Imu> = (0..=n_imu)
         .map(|k| imu_model.sample(&world, k as f64 / hz))
         .collect();
-    let mut pulse_times: Vec<(f64, usize)> = Vec::new();
-    for (i, tx) in world.transmitters.iter().enumerate() {
-        pulse_times.extend(
-            tx.pulse_centres(0.0, duration)
-                .into_iter()
-                .map(|t| (quantize(t, 1e4), i)),
-        );
-    }
-    pulse_times.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    let pulse_times = world.pulse_schedule(duration);
     let pulses: Vec<Pulse> = pulse_times
         .iter()
         .filter_map(|&(t, i)| pulse_model.measure(&world, i, t))
@@ -306,31 +298,7 @@ pub fn simulate(cfg: &ScenarioConfig) -> Simulation {
     session.records = merge(imu, pulses.clone());
 
     let mut truth = Session::new(header);
-    let victims: Vec<TruthVictim> = world
-        .transmitters
-        .iter()
-        .map(|tx| TruthVictim {
-            p: tx.position,
-            m: tx.moment,
-        })
-        .collect();
-    let n_truth = (duration * cfg.truth_hz).floor() as u64;
-    let mut times: Vec<f64> = (0..=n_truth).map(|k| k as f64 / cfg.truth_hz).collect();
-    times.extend(pulses.iter().map(|p| p.t));
-    times.sort_by(f64::total_cmp);
-    times.dedup();
-    truth.records = times
-        .into_iter()
-        .map(|t| {
-            let s = world.rescuer_state(t);
-            Record::Truth(Truth {
-                t,
-                p: [s.p.x, s.p.y, s.p.z].map(|x| quantize(x, 1e4)),
-                rpy: [s.rpy.x, s.rpy.y, wrap_pi(s.rpy.z)].map(|x| quantize(x, 1e5)),
-                victims: victims.clone(),
-            })
-        })
-        .collect();
+    truth.records = world.truth_records(cfg.truth_hz, duration, pulses.iter().map(|p| p.t), |t| t);
 
     let mut rng_cal = stream(cfg.seed, 4);
     let [lo, hi] = cfg.transmitter.moment_range;

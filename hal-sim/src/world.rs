@@ -2,7 +2,9 @@
 //! with continuous-time truth queries that sensor models (measurement-level now,
 //! bus-level chip emulations later) sample.
 use crate::physics::V3;
-use crate::rescuer::{Rescuer, RescuerState};
+use crate::rescuer::{Rescuer, RescuerState, wrap_pi};
+use crate::sensors::quantize;
+use crate::session::{Record, Truth, TruthVictim};
 use crate::transmitter::Transmitter;
 
 /// The Earth's field in W (µT) from its total intensity (µT) and inclination (degrees,
@@ -24,6 +26,58 @@ pub struct World {
 }
 
 impl World {
+    /// Every transmitter's pulse centres in `[0, duration)` as `(time, transmitter)`,
+    /// times quantized to 0.1 ms as the logs write them, in time order (ties by index).
+    pub fn pulse_schedule(&self, duration: f64) -> Vec<(f64, usize)> {
+        let mut times: Vec<(f64, usize)> = Vec::new();
+        for (i, tx) in self.transmitters.iter().enumerate() {
+            times.extend(
+                tx.pulse_centres(0.0, duration)
+                    .into_iter()
+                    .map(|t| (quantize(t, 1e4), i)),
+            );
+        }
+        times.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        times
+    }
+
+    /// Truth records (the spec's ground truth) at `hz` over `[0, duration]` and at the
+    /// `extra` true times, in time order without repeats; `log_time` maps a true time to
+    /// the log's clock.
+    pub fn truth_records(
+        &self,
+        hz: f64,
+        duration: f64,
+        extra: impl IntoIterator<Item = f64>,
+        log_time: impl Fn(f64) -> f64,
+    ) -> Vec<Record> {
+        let victims: Vec<TruthVictim> = self
+            .transmitters
+            .iter()
+            .map(|tx| TruthVictim {
+                p: tx.position,
+                m: tx.moment,
+            })
+            .collect();
+        let n = (duration * hz).floor() as u64;
+        let mut times: Vec<f64> = (0..=n).map(|k| k as f64 / hz).collect();
+        times.extend(extra);
+        times.sort_by(f64::total_cmp);
+        times.dedup();
+        times
+            .into_iter()
+            .map(|t| {
+                let s = self.rescuer_state(t);
+                Record::Truth(Truth {
+                    t: log_time(t),
+                    p: [s.p.x, s.p.y, s.p.z].map(|x| quantize(x, 1e4)),
+                    rpy: [s.rpy.x, s.rpy.y, wrap_pi(s.rpy.z)].map(|x| quantize(x, 1e5)),
+                    victims: victims.clone(),
+                })
+            })
+            .collect()
+    }
+
     /// The rescuer's (receiver's) full motion state at `t`.
     pub fn rescuer_state(&self, t: f64) -> RescuerState {
         self.rescuer.state(t)

@@ -16,11 +16,9 @@ use super::if_signal::{AnalogChain, IfSignal};
 use super::imu::{ImuBus, ImuSampler};
 use super::{NoDelay, SimClock};
 use crate::physics::V3;
-use crate::rescuer::wrap_pi;
 use crate::scenario::{ScenarioConfig, Simulation, merge, simulate};
 use crate::sensors::{ImuModel, quantize, round_significant};
-use crate::session::{Imu, Pulse, Record, Session, Truth, TruthVictim};
-use crate::world::World;
+use crate::session::{Imu, Pulse, Session};
 use anyhow::{Context, Result, anyhow};
 use firmware::drivers::ads131m04::{Ads131m04, Config, Error as AdcError};
 use firmware::frontend::{Frontend, FrontendConfig, FrontendStats};
@@ -136,7 +134,7 @@ pub fn simulate_bus(cfg: &ScenarioConfig, chain: &AnalogChain) -> Result<BusRun>
     drop(imu);
     drop(bus);
 
-    let truth = truth_records(world, cfg.truth_hz, duration, &pulses);
+    let truth = world.truth_records(cfg.truth_hz, duration, pulses.iter().map(|p| p.t), |t| t);
     let mut header = sim.session.header.clone();
     header.sign_ambiguous = true;
     sim.session = Session::new(header.clone());
@@ -151,35 +149,6 @@ pub fn simulate_bus(cfg: &ScenarioConfig, chain: &AnalogChain) -> Result<BusRun>
         adc_samples,
         i2c_transactions,
     })
-}
-
-/// Truth records at `hz` and at every pulse time (as the measurement level writes them).
-fn truth_records(world: &World, hz: f64, duration: f64, pulses: &[Pulse]) -> Vec<Record> {
-    let victims: Vec<TruthVictim> = world
-        .transmitters
-        .iter()
-        .map(|tx| TruthVictim {
-            p: tx.position,
-            m: tx.moment,
-        })
-        .collect();
-    let n = (duration * hz).floor() as u64;
-    let mut times: Vec<f64> = (0..=n).map(|k| k as f64 / hz).collect();
-    times.extend(pulses.iter().map(|p| p.t));
-    times.sort_by(f64::total_cmp);
-    times.dedup();
-    times
-        .into_iter()
-        .map(|t| {
-            let s = world.rescuer_state(t);
-            Record::Truth(Truth {
-                t,
-                p: [s.p.x, s.p.y, s.p.z].map(|x| quantize(x, 1e4)),
-                rpy: [s.rpy.x, s.rpy.y, wrap_pi(s.rpy.z)].map(|x| quantize(x, 1e5)),
-                victims: victims.clone(),
-            })
-        })
-        .collect()
 }
 
 /// One measurement-level pulse and the bus-level pulse matched to it.

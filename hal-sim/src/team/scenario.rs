@@ -13,7 +13,7 @@ use crate::receiver_config::{Pdr, ReceiverConfig};
 use crate::rescuer::{GaitParams, Plan, Rescuer, Waypoint, wrap_pi};
 use crate::scenario::{draw_person, merge, stream};
 use crate::sensors::{ImuModel, PulseModel, SensorConfig, quantize, round_significant};
-use crate::session::{Header, Imu, Pulse, Record, Session, Truth, TruthVictim};
+use crate::session::{Header, Imu, Pulse, Session};
 use crate::transmitter::{Transmitter, TransmitterSpec};
 use crate::world::{World, earth_field_ut};
 use anyhow::Context;
@@ -257,15 +257,7 @@ fn labelled_pulses(
     model: &mut PulseModel,
     clock: Clock,
 ) -> (Vec<Pulse>, Vec<usize>, Vec<f64>) {
-    let mut times: Vec<(f64, usize)> = Vec::new();
-    for (i, tx) in world.transmitters.iter().enumerate() {
-        times.extend(
-            tx.pulse_centres(0.0, duration)
-                .into_iter()
-                .map(|t| (quantize(t, 1e4), i)),
-        );
-    }
-    times.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    let times = world.pulse_schedule(duration);
     let mut src_map: Vec<usize> = Vec::new();
     let mut pulses = Vec::new();
     let mut truth_times = Vec::new();
@@ -295,33 +287,8 @@ fn truth_log(
     extra: Vec<f64>,
     clock: Clock,
 ) -> Session {
-    let victims: Vec<TruthVictim> = world
-        .transmitters
-        .iter()
-        .map(|tx| TruthVictim {
-            p: tx.position,
-            m: tx.moment,
-        })
-        .collect();
-    let mut ts: Vec<f64> = (0..=(duration * 2.0) as u64)
-        .map(|k| k as f64 / 2.0)
-        .collect();
-    ts.extend(extra);
-    ts.sort_by(f64::total_cmp);
-    ts.dedup();
     let mut truth = Session::new(header);
-    truth.records = ts
-        .into_iter()
-        .map(|t| {
-            let s = world.rescuer_state(t);
-            Record::Truth(Truth {
-                t: clock.at(t),
-                p: [s.p.x, s.p.y, s.p.z].map(|x| quantize(x, 1e4)),
-                rpy: [s.rpy.x, s.rpy.y, wrap_pi(s.rpy.z)].map(|x| quantize(x, 1e5)),
-                victims: victims.clone(),
-            })
-        })
-        .collect();
+    truth.records = world.truth_records(2.0, duration, extra, |t| clock.at(t));
     truth
 }
 
