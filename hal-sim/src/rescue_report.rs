@@ -16,7 +16,7 @@
 //! primary-search part is straight toward the victim, so it is ideal on both sides).
 use crate::accuracy::stats;
 use crate::closed_loop::{self, ClosedLoopConfig, Outcome, Policy, PulseRow, StartMode};
-use firmware::guidance::{GuidanceConfig, Status};
+use firmware::guidance::{GuidanceConfig, HeightPrompt, Status};
 use std::fmt::Write as _;
 use std::time::Instant;
 
@@ -171,7 +171,7 @@ pub enum Phase {
     /// Fine search over the mean (within `max(probe radius, σ_h)`): bracketing, waiting
     /// for the belief to shrink to the probe radius.
     OverMean,
-    /// Standing for a lift of the receiver.
+    /// Standing for a lift of the receiver, or to lower or raise it.
     Lift,
 }
 
@@ -195,7 +195,7 @@ impl Phase {
             Phase::ToMean => "localized, walking to the mean (≥ 2 m)",
             Phase::FineApproach => "fine search, approaching (< 2 m)",
             Phase::OverMean => "fine search, over the mean (bracketing, waiting to probe)",
-            Phase::Lift => "lift",
+            Phase::Lift => "lift, lower or raise the receiver (standing)",
         }
     }
 
@@ -206,7 +206,7 @@ impl Phase {
         match d.status {
             Status::NoSignal => Phase::NoSignal,
             Status::FluxLine => Phase::FluxLine,
-            _ if d.lift => Phase::Lift,
+            _ if d.lift || d.height_prompt != HeightPrompt::None => Phase::Lift,
             Status::Localized | Status::Probe => {
                 let h = d.horizontal_m.map_or(f64::MAX, f64::from);
                 let sig = d.uncertainty_m.map_or(0.0, f64::from);
@@ -660,7 +660,7 @@ fn trace(case: Case, seed: u64) -> anyhow::Result<()> {
         let e = rx.estimate();
         eprintln!(
             "t {:7.2} {:10} true_d {:6.2} est_h {:>6} sig_h {:>6} walk {:>6} err_h {:>6} \
-             ncomp {:2} lift {} scale {:>6} depth {:>5} tilt_err_deg {:.2} {:.2} dr_sig {:.3} dr_steps {}",
+             ncomp {:2} lift {} hp {:?} height {:.2}/{:.2} scale {:>6} depth {:>5} tilt_err_deg {:.2} {:.2} dr_sig {:.3} dr_steps {}",
             r.t,
             r.status,
             r.true_distance_m,
@@ -670,6 +670,9 @@ fn trace(case: Case, seed: u64) -> anyhow::Result<()> {
             r.error_h_m.map_or("-".into(), |v| format!("{v:.3}")),
             r.n_components,
             u8::from(d.lift),
+            d.height_prompt,
+            d.height_m,
+            r.rx[2],
             e.map_or("-".into(), |e| format!("{:.3}", e.scale)),
             d.depth_m.map_or("-".into(), |v| format!("{v:.2}")),
             (f64::from(rx.motion().attitude().0.x) - r.true_rpy[0]).to_degrees(),
