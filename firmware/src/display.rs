@@ -13,6 +13,8 @@
 //! ```
 //! The arrow is relative to the device's heading: straight up means "ahead", positive
 //! angles turn it to the left. "Probe here" replaces the arrow with a cross-hair.
+//! Prompts take the status word's place: "LOWER TO SNOW" / "RAISE TO 1M" (the height
+//! prompts of the fine search, [`DisplayModel::height_prompt`]), then "LIFT 40CM".
 //!
 //! Several victims: the top row's right end lists them by number (the target drawn
 //! inverted, a found one as `+`) instead of "V1", and outside the fine search the depth

@@ -41,6 +41,14 @@
 //!   stop-and-go walk), above the fixed `probe_radius / 3`: waiting for the fixed bound
 //!   cost most rescues the whole timeout without sharpening the estimate.
 //! - [`Status::NoSignal`]: no usable pulse.
+//! - Height prompts ([`HeightPrompt`], beyond the papers): localized within
+//!   [`GuidanceConfig::lower_within_m`] of the mean, a receiver tracked above
+//!   [`GuidanceConfig::low_height_m`] is asked once to be lowered to the snow (the range,
+//!   hence the pulse noise k_sen·|H| of ICRA 2006 eq. 10 and the position error, shrinks
+//!   by the lowering, and the measured 0.8 m move pins the range); a lowered receiver
+//!   whose mean is farther than [`GuidanceConfig::raise_beyond_m`] is asked to be raised.
+//!   The depth shown is below the snow from the tracked height
+//!   ([`GuidanceInput::height_m`]). "Probe here" waits while a prompt shows.
 //!
 //! Angles: bearings in `G` are measured from north toward west (counter-clockwise seen
 //! from above, like yaw); the arrow is the bearing minus the device's yaw, positive to

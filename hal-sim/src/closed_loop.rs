@@ -96,7 +96,7 @@ pub struct ClosedLoopConfig {
     pub lift: bool,
     /// Whether the receiver asks for the receiver to be lowered to the snow in the fine
     /// search (the rescuer then lowers it to [`LOW_HOLD_M`]); without it the whole fine
-    /// search is done at [`HOLD_HEIGHT_M`].
+    /// search is done at the walking height (1 m).
     pub lower: bool,
 }
 
@@ -322,7 +322,7 @@ pub const LIFT_M: f64 = 0.4;
 pub const LIFT_S: f64 = 2.0;
 
 /// Receiver height above the snow after "LOWER TO SNOW", m (the directional search's
-/// [`CROSS_HEIGHT_M`]: a hand-held receiver just above the surface).
+/// `CROSS_HEIGHT_M`: a hand-held receiver just above the surface).
 pub const LOW_HOLD_M: f64 = 0.2;
 /// Duration of the lowering (or raising) of the receiver, s (minimum-jerk profile).
 pub const HEIGHT_MOVE_S: f64 = 1.0;
