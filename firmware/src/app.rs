@@ -45,7 +45,7 @@ use crate::estimate::{
 use crate::frame::rotation_from_rpy;
 use crate::frontend::{Frontend, FrontendError, PulseMeasurement};
 use crate::guidance::{
-    Guidance, GuidanceConfig, GuidanceInput, GuidanceOutput, Status, relative_arrow,
+    Guidance, GuidanceConfig, GuidanceInput, GuidanceOutput, HeightPrompt, Status, relative_arrow,
     to_degrees_wrapped,
 };
 use crate::motion::{Motion, MotionConfig, MotionError};
@@ -143,6 +143,7 @@ impl AppConfig {
         };
         let guidance = GuidanceConfig {
             receiver_height_m: sog.receiver_height,
+            min_range_m: sog.receiver_height + sog.depth_min,
             ..GuidanceConfig::default()
         };
         Self {
@@ -188,6 +189,12 @@ pub struct DisplayModel {
     /// ~2 s (an absolute vertical displacement that pins the depth); steps are not
     /// counted meanwhile.
     pub lift: bool,
+    /// Fine search: lower the receiver to the snow, or raise it again (stand meanwhile;
+    /// steps are not counted while it shows).
+    pub height_prompt: HeightPrompt,
+    /// The receiver's height above the snow as tracked (m): the configured height plus
+    /// the vertical moves the accelerometer measured ([`Receiver::height_m`]).
+    pub height_m: f32,
     /// The victim list, by list number (slot); `None`: free slot.
     pub list: [Option<VictimRow>; MAX_VICTIMS],
     /// List number (1-based) of the victim the guidance leads to.
@@ -469,6 +476,16 @@ impl Receiver {
         }
     }
 
+    /// The receiver's height above the snow (m): the configured holding height
+    /// ([`GuidanceConfig::receiver_height_m`]) plus the vertical moves the accelerometer
+    /// measured while standing and handed to the estimator (lowering to the snow, raising
+    /// again; a lift nets zero), so that the depth shown, `−p_z − height`, stays right.
+    /// A move the rescuer made while walking is not measured: the height (like the
+    /// estimator) does not see it.
+    pub fn height_m(&self) -> f32 {
+        (self.cfg.guidance.receiver_height_m + self.motion.vertical_m()).max(0.0)
+    }
+
     /// The search control's answer to the last pulse.
     pub fn guidance(&self) -> &GuidanceOutput {
         &self.last
@@ -513,8 +530,10 @@ impl Receiver {
         match r {
             Ok(()) => {
                 self.t_now = t;
-                // The lift prompt lasts while pulses come; without them, steps count again.
-                if self.motion.lift_mode() && !self.display_model().lift {
+                // The lift and height prompts last while pulses come; without them, steps
+                // count again.
+                let d = self.display_model();
+                if self.motion.lift_mode() && !d.lift && d.height_prompt == HeightPrompt::None {
                     self.motion.set_lift_mode(false);
                 }
                 Ok(())
@@ -635,8 +654,19 @@ impl Receiver {
                 yaw: rpy.z,
                 estimate: self.bank.filter(slot).estimate(),
                 reinitialized,
+                height_m: Some(self.height_m()),
             });
-            self.motion.set_lift_mode(self.last.lift);
+            // Several victims: no lowering. Each mixture's initialization prior places its
+            // victim below the walking height (`SogConfig::receiver_height`), and with
+            // several transmitters mixtures are (re)initialized all along the search —
+            // while the receiver is low their depth prior would be off by the lowering
+            // (measured: victims found 360 → 356 of 360 on multi-report seeds 101–130).
+            if self.last.height_prompt == HeightPrompt::Lower && self.bank.len() > 1 {
+                self.last.height_prompt = HeightPrompt::None;
+            }
+            // Lifting, lowering or raising the receiver: stand, steps not counted.
+            self.motion
+                .set_lift_mode(self.last.lift || self.last.height_prompt != HeightPrompt::None);
         }
         Ok(self.display_model())
     }
@@ -696,6 +726,7 @@ impl Receiver {
         if let Some(c) = &self.classic {
             return DisplayModel {
                 overlap: self.overlap,
+                height_m: self.height_m(),
                 ..c.display(self.t_now, yaw)
             };
         }
@@ -747,6 +778,12 @@ impl Receiver {
                 .or(self.last_pulse_t)
                 .unwrap_or(0.0),
             lift: g.lift && !timed_out,
+            height_prompt: if timed_out {
+                HeightPrompt::None
+            } else {
+                g.height_prompt
+            },
+            height_m: self.height_m(),
             list,
             target: self
                 .target

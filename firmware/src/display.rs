@@ -13,6 +13,8 @@
 //! ```
 //! The arrow is relative to the device's heading: straight up means "ahead", positive
 //! angles turn it to the left. "Probe here" replaces the arrow with a cross-hair.
+//! Prompts take the status word's place: "LOWER TO SNOW" / "RAISE TO 1M" (the height
+//! prompts of the fine search, [`DisplayModel::height_prompt`]), then "LIFT 40CM".
 //!
 //! Several victims: the top row's right end lists them by number (the target drawn
 //! inverted, a found one as `+`) instead of "V1", and outside the fine search the depth
@@ -33,7 +35,7 @@ use embedded_graphics::primitives::{Circle, Line, PrimitiveStyle, Rectangle, Tri
 use embedded_graphics::text::{Baseline, Text};
 
 use crate::app::{DisplayModel, VictimRow};
-use crate::guidance::Status;
+use crate::guidance::{HeightPrompt, Status};
 
 /// Screen width, pixels.
 pub const WIDTH: u32 = 128;
@@ -90,6 +92,11 @@ pub fn format_metres(m: f32) -> Line16 {
 
 /// The top-row word of the lift prompt ([`DisplayModel::lift`]).
 pub const LIFT_WORD: &str = "LIFT 40CM";
+
+/// The top-row words of the height prompts ([`DisplayModel::height_prompt`]).
+pub const LOWER_WORD: &str = "LOWER TO SNOW";
+/// See [`LOWER_WORD`].
+pub const RAISE_WORD: &str = "RAISE TO 1M";
 
 /// The status word.
 pub fn status_word(s: Status) -> &'static str {
@@ -253,9 +260,13 @@ where
     let small = MonoTextStyle::new(&FONT_6X10, BinaryColor::On);
     let big = MonoTextStyle::new(&FONT_10X20, BinaryColor::On);
 
-    // Top row: status (or the lift prompt), overlap flag, victims heard.
+    // Top row: status (or the height or lift prompt), overlap flag, victims heard.
     let all_marked = model.victims > 0 && model.found >= model.victims;
-    let word = if model.lift {
+    let word = if model.height_prompt == HeightPrompt::Lower {
+        LOWER_WORD
+    } else if model.height_prompt == HeightPrompt::Raise {
+        RAISE_WORD
+    } else if model.lift {
         LIFT_WORD
     } else if all_marked && model.target.is_none() {
         ALL_MARKED_WORD
@@ -423,6 +434,34 @@ mod tests {
         let x0 = UNCERTAINTY_BAR.top_left.x;
         assert!(lit(&f, x0 + 1, y) && lit(&f, x0 + fill as i32, y));
         assert!(!lit(&f, x0 + fill as i32 + 2, y));
+    }
+
+    #[test]
+    fn height_prompts_take_the_top_row_and_keep_the_numbers() {
+        for (prompt, word) in [
+            (HeightPrompt::Lower, LOWER_WORD),
+            (HeightPrompt::Raise, RAISE_WORD),
+        ] {
+            let mut f = Frame::new();
+            let m = DisplayModel {
+                height_prompt: prompt,
+                lift: true,
+                ..model()
+            };
+            draw(&m, &mut f).unwrap();
+            // The prompt wins over the lift word and the status; it fits before the
+            // overlap flag at x = 98.
+            assert!(shows_text(&f, word, Point::zero(), &FONT_6X10), "{word}");
+            assert!(word.len() * 6 < 98);
+            assert!(!shows_text(&f, LIFT_WORD, Point::zero(), &FONT_6X10));
+            assert!(shows_text(&f, "12m", DISTANCE_AT, &FONT_10X20));
+            assert!(shows_text(&f, "dep 1.2m", DEPTH_AT, &FONT_6X10));
+        }
+        // Without a prompt the status word is back.
+        let mut f = Frame::new();
+        draw(&model(), &mut f).unwrap();
+        assert!(!shows_text(&f, LOWER_WORD, Point::zero(), &FONT_6X10));
+        assert!(shows_text(&f, "LOCALIZED", Point::zero(), &FONT_6X10));
     }
 
     #[test]

@@ -41,6 +41,14 @@
 //!   stop-and-go walk), above the fixed `probe_radius / 3`: waiting for the fixed bound
 //!   cost most rescues the whole timeout without sharpening the estimate.
 //! - [`Status::NoSignal`]: no usable pulse.
+//! - Height prompts ([`HeightPrompt`], beyond the papers): localized within
+//!   [`GuidanceConfig::lower_within_m`] of the mean, a receiver tracked above
+//!   [`GuidanceConfig::low_height_m`] is asked once to be lowered to the snow (the range,
+//!   hence the pulse noise k_sen·|H| of ICRA 2006 eq. 10 and the position error, shrinks
+//!   by the lowering, and the measured 0.8 m move pins the range); a lowered receiver
+//!   whose mean is farther than [`GuidanceConfig::raise_beyond_m`] is asked to be raised.
+//!   The depth shown is below the snow from the tracked height
+//!   ([`GuidanceInput::height_m`]). "Probe here" waits while a prompt shows.
 //!
 //! Angles: bearings in `G` are measured from north toward west (counter-clockwise seen
 //! from above, like yaw); the arrow is the bearing minus the device's yaw, positive to
@@ -75,6 +83,24 @@ impl Status {
             Status::Probe => "probe",
         }
     }
+}
+
+/// A prompt to change the receiver's height above the snow (fine search).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum HeightPrompt {
+    /// Keep the receiver where it is.
+    #[default]
+    None,
+    /// Fine search: stand and lower the receiver to the snow surface. The pulse noise is
+    /// dominated by `k_sen |H|` near the victim (ICRA 2006 eq. 10), so the position error
+    /// grows with the range: a 0.3 m deep victim is 1.3 m from a receiver held at 1 m but
+    /// 0.5 m from one at 0.2 m. The lowering itself is an absolute vertical displacement
+    /// measured by the accelerometer ([`crate::motion::LiftTracker`]) while |H| changes
+    /// steeply, which pins the range like the lift.
+    Lower,
+    /// Low, but no longer in the fine search (e.g. another victim to walk to): stand and
+    /// raise the receiver to the walking height, so that the move is measured.
+    Raise,
 }
 
 /// Thresholds of the search control.
@@ -138,6 +164,28 @@ pub struct GuidanceConfig {
     /// Most pulses on which the lift is asked for in one search (0: never); "probe
     /// here" waits while it is.
     pub lift_max_pulses: u8,
+    /// Localized within this horizontal distance (m) of the mean, a receiver higher than
+    /// [`low_height_m`](Self::low_height_m) is asked to be lowered to the snow, once per
+    /// search ([`HeightPrompt::Lower`]; 0: never). About where the fine search goes step
+    /// by step: the range is then mostly the depth plus the receiver's height.
+    pub lower_within_m: f32,
+    /// A receiver at most this high above the snow (m) counts as lowered.
+    pub low_height_m: f32,
+    /// Height above the snow (m) a receiver lowered "to the snow" is held at (nominal).
+    pub lowered_height_m: f32,
+    /// Shallowest range below the receiver (m) the estimator models: its initialization
+    /// prior places the victim `receiver_height + depth_min` below the receiver at least.
+    /// The lowering is asked for only when the estimated victim stays that far below the
+    /// lowered receiver: a shallower one would leave the filter's model (and at such a
+    /// short range the field's steepness makes the linearized update fragile), while its
+    /// range from the walking height is already short.
+    pub min_range_m: f32,
+    /// A lowered receiver is asked to be raised again ([`HeightPrompt::Raise`]) when the
+    /// mean is farther than this (m), e.g. the next victim after a mark.
+    pub raise_beyond_m: f32,
+    /// Most pulses on which one height prompt is shown (a rescuer who ignores it is not
+    /// asked again); "probe here" waits while it is.
+    pub height_prompt_pulses: u8,
 }
 
 impl Default for GuidanceConfig {
@@ -163,6 +211,12 @@ impl Default for GuidanceConfig {
             lift_within_m: 1.0,
             lift_depth_sigma_m: 0.2,
             lift_max_pulses: 6,
+            lower_within_m: 2.0,
+            low_height_m: 0.5,
+            lowered_height_m: 0.2,
+            min_range_m: 1.0,
+            raise_beyond_m: 6.0,
+            height_prompt_pulses: 4,
         }
     }
 }
@@ -181,6 +235,10 @@ pub struct GuidanceInput {
     pub estimate: Option<VictimEstimate>,
     /// The estimator rebuilt its mixture on this pulse: forget the latched target.
     pub reinitialized: bool,
+    /// The receiver's height above the snow (m) as tracked from the measured vertical
+    /// moves; `None`: not tracked (the configured
+    /// [`receiver_height_m`](GuidanceConfig::receiver_height_m), no height prompts).
+    pub height_m: Option<f32>,
 }
 
 /// The search control's answer for one pulse.
@@ -207,6 +265,8 @@ pub struct GuidanceOutput {
     /// Fine search: stand and lift the receiver (≈ 0.4 m up and down within ~2 s), the
     /// depth is too uncertain (see [`GuidanceConfig::lift_depth_sigma_m`]).
     pub lift: bool,
+    /// Lower the receiver to the snow, or raise it again (see [`HeightPrompt`]).
+    pub height_prompt: HeightPrompt,
 }
 
 /// The search-control state machine (IROS §III-C).
@@ -241,6 +301,11 @@ pub struct Guidance {
     probing: bool,
     /// Pulses on which the lift was asked for.
     lift_pulses: u8,
+    /// The height prompt shown on the last pulse, and on how many pulses in a row.
+    prompt: HeightPrompt,
+    prompt_pulses: u8,
+    /// The lowering was asked for in this search (asked once).
+    lower_asked: bool,
 }
 
 impl Guidance {
@@ -262,6 +327,9 @@ impl Guidance {
             bracket_dir: None,
             probing: false,
             lift_pulses: 0,
+            prompt: HeightPrompt::None,
+            prompt_pulses: 0,
+            lower_asked: false,
         }
     }
 
@@ -325,8 +393,10 @@ impl Guidance {
                 self.localized = true;
             }
         }
+        let height = input.height_m.filter(|h| h.is_finite());
+        out.height_prompt = self.height_prompt(est.as_ref(), height);
         match (&est, self.localized) {
-            (Some(e), true) => self.walk_to_mean(e, yaw, &mut out),
+            (Some(e), true) => self.walk_to_mean(e, yaw, height, &mut out),
             _ => {
                 if let Some(b) = flux {
                     out.status = Status::FluxLine;
@@ -424,14 +494,22 @@ impl Guidance {
     }
 
     /// Localized: walk to the mean, bracket it, or probe.
-    fn walk_to_mean(&mut self, e: &VictimEstimate, yaw: f32, out: &mut GuidanceOutput) {
+    fn walk_to_mean(
+        &mut self,
+        e: &VictimEstimate,
+        yaw: f32,
+        height: Option<f32>,
+        out: &mut GuidanceOutput,
+    ) {
         let c = self.cfg;
         let (axis, sigma_h) = horizontal_axis(&e.cov);
         let dist_h = libm::sqrtf(e.p.x * e.p.x + e.p.y * e.p.y);
         out.distance_m = Some(e.p.norm());
         out.horizontal_m = Some(dist_h);
         if dist_h <= c.fine_search_m {
-            out.depth_m = Some((-e.p.z - c.receiver_height_m).max(0.0));
+            // The receiver's current height: the depth stays right once it is lowered.
+            let h = height.unwrap_or(c.receiver_height_m).max(0.0);
+            out.depth_m = Some((-e.p.z - h).max(0.0));
         }
         let sure = 3.0 * sigma_h <= c.probe_radius_m;
         // The issue's rule: the horizontal distance is below the estimate's uncertainty
@@ -459,12 +537,19 @@ impl Guidance {
         }
         // Depth (range) pinned by the scale only: ask for a lift first.
         let sigma_z = libm::sqrtf(e.cov[(2, 2)].max(0.0));
+        // Lowered to the snow, the lowering pinned the range: no lift (measured: a lift
+        // near the snow added failures without calibration, see the rescue report).
+        let lowered = height.is_some_and(|h| h <= c.low_height_m);
         out.lift = !self.probing
+            && !lowered
+            && out.height_prompt == HeightPrompt::None
             && dist_h <= c.lift_within_m
             && sigma_z > c.lift_depth_sigma_m
             && self.lift_pulses < c.lift_max_pulses;
         if out.lift {
             self.lift_pulses = self.lift_pulses.saturating_add(1);
+        } else if out.height_prompt != HeightPrompt::None {
+            // Stand and move the receiver first: no probe meanwhile.
         } else if self.probe_count >= c.probe_confirm_pulses
             || self.over_mean >= c.probe_timeout_pulses
             || (over && plateau)
@@ -492,6 +577,49 @@ impl Guidance {
 }
 
 impl Guidance {
+    /// The height prompt for this pulse: lower the receiver once the fine search starts
+    /// (localized, mean within [`GuidanceConfig::lower_within_m`]), raise it when the
+    /// mean of a lowered receiver is farther than [`GuidanceConfig::raise_beyond_m`]; each shown on at most
+    /// [`GuidanceConfig::height_prompt_pulses`] pulses in a row, and the lowering asked
+    /// for once per search. Nothing without a tracked height.
+    fn height_prompt(&mut self, e: Option<&VictimEstimate>, height: Option<f32>) -> HeightPrompt {
+        let c = &self.cfg;
+        let (Some(h), Some(e)) = (height, e) else {
+            self.prompt = HeightPrompt::None;
+            self.prompt_pulses = 0;
+            return HeightPrompt::None;
+        };
+        let dist_h = libm::sqrtf(e.p.x * e.p.x + e.p.y * e.p.y);
+        let want = if h > c.low_height_m {
+            let deep_enough = -e.p.z - h + c.lowered_height_m >= c.min_range_m;
+            if self.localized && !self.lower_asked && dist_h <= c.lower_within_m && deep_enough {
+                HeightPrompt::Lower
+            } else {
+                HeightPrompt::None
+            }
+        } else if dist_h > c.raise_beyond_m {
+            HeightPrompt::Raise
+        } else {
+            HeightPrompt::None
+        };
+        // A lowered receiver ends the lowering prompt for good (asked once).
+        if self.prompt == HeightPrompt::Lower && want != HeightPrompt::Lower {
+            self.lower_asked = true;
+        }
+        if want == HeightPrompt::None || want != self.prompt {
+            self.prompt_pulses = 0;
+        }
+        self.prompt = want;
+        if want == HeightPrompt::None || self.prompt_pulses >= c.height_prompt_pulses {
+            if want == HeightPrompt::Lower {
+                self.lower_asked = true;
+            }
+            return HeightPrompt::None;
+        }
+        self.prompt_pulses = self.prompt_pulses.saturating_add(1);
+        want
+    }
+
     /// Whether the belief's horizontal σ has stopped shrinking near the mean: the σ
     /// actually reached, as opposed to the fixed `probe_radius / 3`. Counted while the
     /// receiver is within the bracketing span of the mean (the fine search's geometry;
@@ -628,6 +756,7 @@ mod tests {
             yaw,
             estimate: e,
             reinitialized: false,
+            height_m: None,
         }
     }
 
@@ -691,6 +820,7 @@ mod tests {
             yaw: 0.0,
             estimate: None,
             reinitialized: false,
+            height_m: None,
         });
         assert_eq!(o, GuidanceOutput::default());
         // NaNs are ignored rather than propagated.
@@ -991,5 +1121,116 @@ mod tests {
         assert!((s - 1.5f32.sqrt()).abs() < 1e-5);
         assert!((axis[0] - axis[1]).abs() < 1e-5);
         assert!(flux_direction(&Vec3::new(0.0, 0.0, 1.0), &[1.0, 0.0]).is_none());
+    }
+
+    /// A search localized from 30 m away (so that the mean near the receiver is trusted).
+    fn localized_search(cfg: GuidanceConfig) -> Guidance {
+        let mut g = Guidance::new(cfg);
+        let far = est(Vec3::new(30.0, 0.0, -2.0), 2.0);
+        let _ = g.update(&input(Vec3::new(1e-4, 0.0, 0.0), 1.0, 0.0, Some(far)));
+        assert!(g.is_localized());
+        g
+    }
+
+    fn at_height(e: VictimEstimate, height: Option<f32>) -> GuidanceInput {
+        GuidanceInput {
+            height_m: height,
+            ..input(Vec3::new(1e-4, 0.0, 0.0), 0.0, 0.0, Some(e))
+        }
+    }
+
+    #[test]
+    fn a_rescuer_who_ignores_the_lowering_is_asked_a_few_times_then_left_alone() {
+        let cfg = GuidanceConfig::default();
+        let mut g = localized_search(cfg);
+        // 1.5 m from the mean, 1.2 m deep below the snow, the receiver at 1 m.
+        let near = est(Vec3::new(1.5, 0.0, -2.2), 0.3);
+        // Farther than `lower_within_m`: not yet.
+        let o = g.update(&at_height(est(Vec3::new(2.5, 0.0, -2.2), 0.3), Some(1.0)));
+        assert_eq!(o.height_prompt, HeightPrompt::None);
+        for _ in 0..cfg.height_prompt_pulses {
+            let o = g.update(&at_height(near, Some(1.0)));
+            assert_eq!(o.height_prompt, HeightPrompt::Lower);
+            assert_eq!(o.status, Status::Localized);
+            assert!(!o.lift);
+            // The depth below the snow from the current height.
+            assert!(o.depth_m.is_some_and(|d| (d - 1.2).abs() < 1e-5));
+        }
+        // Ignored: not asked again in this search, even over the mean; the search goes on.
+        for _ in 0..20 {
+            let o = g.update(&at_height(near, Some(1.0)));
+            assert_eq!(o.height_prompt, HeightPrompt::None);
+        }
+        let o = g.update(&at_height(est(Vec3::new(0.1, 0.0, -2.2), 0.05), Some(1.0)));
+        assert_eq!(o.height_prompt, HeightPrompt::None);
+        assert!(o.depth_m.is_some_and(|d| (d - 1.2).abs() < 1e-5));
+    }
+
+    #[test]
+    fn a_lowered_receiver_ends_the_prompt_and_the_depth_follows_the_height() {
+        let cfg = GuidanceConfig::default();
+        let mut g = localized_search(cfg);
+        let o = g.update(&at_height(est(Vec3::new(1.5, 0.0, -2.2), 0.3), Some(1.0)));
+        assert_eq!(o.height_prompt, HeightPrompt::Lower);
+        // Lowered by 0.8 m: the victim is 0.8 m less below the receiver, the depth below
+        // the snow is the same.
+        let o = g.update(&at_height(est(Vec3::new(1.5, 0.0, -1.4), 0.3), Some(0.2)));
+        assert_eq!(o.height_prompt, HeightPrompt::None);
+        assert!(o.depth_m.is_some_and(|d| (d - 1.2).abs() < 1e-5));
+        // Lowered, a wide depth asks for no lift (the lowering pinned the range).
+        let mut wide = est(Vec3::new(0.1, 0.0, -1.4), 0.05);
+        wide.cov[(2, 2)] = 0.3 * 0.3;
+        let o = g.update(&at_height(wide, Some(0.2)));
+        assert!(!o.lift && o.height_prompt == HeightPrompt::None);
+    }
+
+    #[test]
+    fn a_shallow_victim_or_an_untracked_height_gets_no_lowering() {
+        let cfg = GuidanceConfig::default();
+        // 0.5 m deep: lowered to 0.2 m it would be 0.7 m below the receiver, shallower
+        // than the estimator's `min_range_m` (1 m).
+        let mut g = localized_search(cfg);
+        let o = g.update(&at_height(est(Vec3::new(1.0, 0.0, -1.5), 0.3), Some(1.0)));
+        assert_eq!(o.height_prompt, HeightPrompt::None);
+        // Deep, but the caller tracks no height.
+        let mut g = localized_search(cfg);
+        let o = g.update(&at_height(est(Vec3::new(1.0, 0.0, -3.0), 0.3), None));
+        assert_eq!(o.height_prompt, HeightPrompt::None);
+        assert!(o.depth_m.is_some_and(|d| (d - 2.0).abs() < 1e-5));
+        // Switched off.
+        let mut g = localized_search(GuidanceConfig {
+            lower_within_m: 0.0,
+            ..cfg
+        });
+        let o = g.update(&at_height(est(Vec3::new(1.0, 0.0, -3.0), 0.3), Some(1.0)));
+        assert_eq!(o.height_prompt, HeightPrompt::None);
+    }
+
+    #[test]
+    fn a_lowered_receiver_far_from_the_mean_is_asked_to_be_raised() {
+        let cfg = GuidanceConfig::default();
+        let mut g = localized_search(cfg);
+        let near = est(Vec3::new(1.0, 0.0, -1.4), 0.3);
+        assert_eq!(
+            g.update(&at_height(near, Some(0.2))).height_prompt,
+            HeightPrompt::None
+        );
+        // The mean moved 10 m away (e.g. the next victim): raise, a few pulses at most.
+        let far = est(Vec3::new(10.0, 0.0, -1.4), 0.5);
+        for _ in 0..cfg.height_prompt_pulses {
+            assert_eq!(
+                g.update(&at_height(far, Some(0.2))).height_prompt,
+                HeightPrompt::Raise
+            );
+        }
+        assert_eq!(
+            g.update(&at_height(far, Some(0.2))).height_prompt,
+            HeightPrompt::None
+        );
+        // Raised: nothing more to ask; no lowering asked again this far away.
+        assert_eq!(
+            g.update(&at_height(far, Some(1.0))).height_prompt,
+            HeightPrompt::None
+        );
     }
 }

@@ -19,6 +19,11 @@
 //! - in the fine search (localized, less than 2 m to walk) walks step by step: on each
 //!   display update that came after they stopped, `round(walk / step)` steps (at most
 //!   3) along the arrow, then stands;
+//! - on "LOWER TO SNOW" stops, pauses [`SETTLE_S`] at rest, then lowers the receiver to [`LOW_HOLD_M`] above the snow in a brisk
+//!   minimum-jerk move of [`HEIGHT_MOVE_S`] (the accelerometer sees it), and goes on with
+//!   the same step-by-step walk bent over, the receiver at that height (same gait and step
+//!   length: the steps of the fine search are short and deliberate either way); on
+//!   "RAISE TO 1M" raises it back the same way;
 //! - stops at "probe here".
 //!
 //! The scenario follows the papers' protocol (start 40–70 m away, random bearing, depth
@@ -50,7 +55,7 @@ use crate::transmitter::{Transmitter, TransmitterSpec};
 use crate::world::earth_field_ut;
 use firmware::Vec3;
 use firmware::app::{AppConfig, DisplayModel, Receiver};
-use firmware::guidance::Status;
+use firmware::guidance::{HeightPrompt, Status};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
@@ -89,6 +94,10 @@ pub struct ClosedLoopConfig {
     /// stands and lifts it [`LIFT_M`] up and down over [`LIFT_S`]); without it the
     /// receiver never asks.
     pub lift: bool,
+    /// Whether the receiver asks for the receiver to be lowered to the snow in the fine
+    /// search (the rescuer then lowers it to [`LOW_HOLD_M`]); without it the whole fine
+    /// search is done at the walking height (1 m).
+    pub lower: bool,
 }
 
 /// Where a closed-loop rescue starts.
@@ -128,6 +137,7 @@ impl ClosedLoopConfig {
             start: StartMode::MoveIn,
             policy: Policy::Receiver,
             lift: true,
+            lower: true,
         }
     }
 }
@@ -233,6 +243,8 @@ pub struct Outcome {
     pub end_p: [f64; 3],
     /// Lifts of the receiver the rescuer made when asked ("LIFT").
     pub lifts: u32,
+    /// Receiver lowered to the snow or raised again on a height prompt.
+    pub height_moves: u32,
 }
 
 impl Outcome {
@@ -286,6 +298,8 @@ pub(crate) fn start_rescuer(
         hold_height: HOLD_HEIGHT_M,
         crawl_to: None,
         lift_t0: None,
+        height_move: None,
+        still_s: 0.0,
     };
     (bias, person)
 }
@@ -306,6 +320,14 @@ pub(crate) struct Scenario {
 pub const LIFT_M: f64 = 0.4;
 /// Duration of the lift (up and down, raised-cosine profile), s.
 pub const LIFT_S: f64 = 2.0;
+
+/// Receiver height above the snow after "LOWER TO SNOW", m (the directional search's
+/// `CROSS_HEIGHT_M`: a hand-held receiver just above the surface).
+pub const LOW_HOLD_M: f64 = 0.2;
+/// Duration of the lowering (or raising) of the receiver, s (minimum-jerk profile).
+pub const HEIGHT_MOVE_S: f64 = 1.0;
+/// Pause of the rescuer after coming to rest before the receiver is moved vertically, s.
+pub const SETTLE_S: f64 = 0.5;
 
 /// Tick of the simulation (the IMU period), s.
 pub(crate) const DT: f64 = 0.01;
@@ -421,6 +443,11 @@ pub(crate) struct Person {
     pub(crate) crawl_to: Option<[f64; 2]>,
     /// Start time of a lift of the receiver under way (see [`LIFT_M`]).
     pub(crate) lift_t0: Option<f64>,
+    /// A lowering or raising of the receiver under way: `(start time, from, to)` heights
+    /// above the snow (see [`HEIGHT_MOVE_S`]).
+    pub(crate) height_move: Option<(f64, f64, f64)>,
+    /// Time the rescuer has been standing (no gait), s.
+    pub(crate) still_s: f64,
 }
 
 impl Person {
@@ -460,6 +487,11 @@ impl Person {
             target = 1.0;
         }
         self.w += (target - self.w) * DT / 0.15;
+        self.still_s = if self.w > 1e-3 {
+            0.0
+        } else {
+            self.still_s + DT
+        };
         let v = cfg.step_length_m * cfg.cadence_hz * self.w;
         self.c[0] += v * self.psi.cos() * DT;
         self.c[1] += v * self.psi.sin() * DT;
@@ -481,6 +513,17 @@ impl Person {
         })
     }
 
+    /// Height of the receiver above the snow at `t` without the bob and the lift: the
+    /// holding height, or the lowering/raising under way (minimum jerk,
+    /// `10u³ − 15u⁴ + 6u⁵`: zero velocity and acceleration at both ends), m.
+    fn hold_height_at(&self, t: f64) -> f64 {
+        self.height_move.map_or(self.hold_height, |(t0, from, to)| {
+            let u = ((t - t0) / HEIGHT_MOVE_S).clamp(0.0, 1.0);
+            let s = u * u * u * (10.0 - 15.0 * u + 6.0 * u * u);
+            from + (to - from) * s
+        })
+    }
+
     pub(crate) fn pose(&self, t: f64) -> Pose {
         let (s, c) = self.psi.sin_cos();
         let [f, l] = HOLD_OFFSET_M;
@@ -490,7 +533,7 @@ impl Person {
         let p = V3::new(
             self.c[0] + f * c - l * s,
             self.c[1] + f * s + l * c,
-            self.hold_height + bob + self.lift_offset(t),
+            self.hold_height_at(t) + bob + self.lift_offset(t),
         );
         let roll = self.wobble[0].at(t).v + 0.03 * self.w * (PI * self.phase).sin();
         let pitch = 0.1 + self.wobble[1].at(t).v + 0.02 * self.w * (TAU * self.phase).cos();
@@ -551,6 +594,8 @@ pub(crate) struct StepPlan {
     pub(crate) lift_pulse: u32,
     /// Lifts made.
     pub(crate) lifts: u32,
+    /// Lowerings and raisings made.
+    pub(crate) height_moves: u32,
 }
 
 /// The simulated world's geomagnetic field (48 µT, 63° inclination), µT.
@@ -569,6 +614,7 @@ pub(crate) fn app_config(receiver: &ReceiverConfig, step_length_m: Option<f64>) 
     );
     app.sog = sog_config(receiver, app.sog);
     app.guidance.receiver_height_m = app.sog.receiver_height;
+    app.guidance.min_range_m = app.sog.receiver_height + app.sog.depth_min;
     app.guidance.sigma_bkg = app.sog.sigma_bkg;
     app
 }
@@ -587,6 +633,9 @@ pub fn run(
     let mut app = app_config(&receiver_cfg, cfg.calibrated.then_some(sc.step_cal));
     if !cfg.lift {
         app.guidance.lift_max_pulses = 0;
+    }
+    if !cfg.lower {
+        app.guidance.lower_within_m = 0.0;
     }
     let mut rx = Box::new(
         Receiver::new(app).map_err(|e| anyhow::anyhow!("receiver refused its config: {e:?}"))?,
@@ -789,6 +838,7 @@ pub fn run(
         depth_shown_m,
         end_p: end.into(),
         lifts: plan.lifts,
+        height_moves: plan.height_moves,
     })
 }
 
@@ -1028,6 +1078,9 @@ pub(crate) fn act(
     t: f64,
 ) {
     let d = &view.display;
+    if height_prompt(person, plan, d, t) {
+        return;
+    }
     // A lift under way: stand until it is over.
     if let Some(t0) = person.lift_t0 {
         person.w_target = 0.0;
@@ -1109,6 +1162,42 @@ pub(crate) fn act(
     }
 }
 
+/// "LOWER TO SNOW" / "RAISE TO 1M": stop, pause [`SETTLE_S`] at rest, then move the
+/// receiver to the asked height over [`HEIGHT_MOVE_S`]. Returns whether the rescuer is
+/// busy with it (stands).
+fn height_prompt(person: &mut Person, plan: &mut StepPlan, d: &DisplayModel, t: f64) -> bool {
+    if let Some((t0, _, to)) = person.height_move {
+        person.w_target = 0.0;
+        if t < t0 + HEIGHT_MOVE_S {
+            return true;
+        }
+        person.hold_height = to;
+        person.height_move = None;
+        plan.stopped_at = t;
+    }
+    let to = match d.height_prompt {
+        HeightPrompt::None => return false,
+        HeightPrompt::Lower => LOW_HOLD_M,
+        HeightPrompt::Raise => HOLD_HEIGHT_M,
+    };
+    person.w_target = 0.0;
+    plan.end_phase = None;
+    plan.stopped_at = plan.stopped_at.max(t - person.still_s);
+    // A lift under way is finished first.
+    if person.lift_t0.is_some_and(|t0| t >= t0 + LIFT_S) {
+        person.lift_t0 = None;
+    }
+    if person.still_s >= SETTLE_S
+        && person.crawl_to.is_none()
+        && person.lift_t0.is_none()
+        && (to - person.hold_height).abs() > 0.1
+    {
+        person.height_move = Some((t, person.hold_height, to));
+        plan.height_moves += 1;
+    }
+    true
+}
+
 fn snapshot(rx: &Receiver, t: f64, rx_p: &V3, status: Status) -> Snapshot {
     let components = rx
         .filter()
@@ -1162,5 +1251,34 @@ mod tests {
         assert!((a - Vec3::new(0.0, 0.0, 9.80665)).norm() < 1e-4);
         assert!(g.norm() < 1e-9);
         assert!((m.norm() - earth.norm() as f32).abs() < 1e-3 && m.z < -41.0);
+    }
+
+    #[test]
+    fn a_rescuer_lowers_the_receiver_and_its_height_is_tracked() {
+        // Seed 35: a victim 1.5 m deep, deep enough for the lowering.
+        let o = run(&ClosedLoopConfig::new(35), &mut |_, _| {}).expect("run");
+        assert!(o.probe_t.is_some(), "reached probe here");
+        assert!(o.height_moves >= 1, "the receiver was lowered");
+        let last = o.rows.last().expect("pulses");
+        // The true receiver is near the snow (within the 4 cm step bounce of 0.2 m), and
+        // the tracked height agrees with it.
+        assert!(last.rx[2] < LOW_HOLD_M + 0.05, "true height {}", last.rx[2]);
+        let tracked = f64::from(last.display.height_m);
+        assert!((tracked - last.rx[2]).abs() < 0.06, "tracked {tracked}");
+        // The depth shown is below the snow, not below the receiver.
+        let depth = o.depth_shown_m.expect("depth shown");
+        assert!(
+            (depth + o.victim[2]).abs() < 0.3,
+            "depth {depth} vs {}",
+            -o.victim[2]
+        );
+        // Without the prompt the whole fine search stays at the walking height.
+        let mut cfg = ClosedLoopConfig::new(35);
+        cfg.lower = false;
+        let o = run(&cfg, &mut |_, _| {}).expect("run");
+        assert_eq!(o.height_moves, 0);
+        let last = o.rows.last().expect("pulses");
+        assert!(last.rx[2] > HOLD_HEIGHT_M - 0.05);
+        assert!((f64::from(last.display.height_m) - HOLD_HEIGHT_M).abs() < 0.02);
     }
 }

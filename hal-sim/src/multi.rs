@@ -353,7 +353,10 @@ pub fn run_with(
     let imu_noise = receiver_cfg.imu.clone();
     let sc = draw_scene(cfg, &mut rng, noise.sigma_bkg_a_per_m);
     let earth = sim_earth();
-    let app = app_config(&receiver_cfg, rc.calibrated.then_some(sc.step_cal));
+    let mut app = app_config(&receiver_cfg, rc.calibrated.then_some(sc.step_cal));
+    if !rc.lower {
+        app.guidance.lower_within_m = 0.0;
+    }
     let mut rx = Box::new(
         Receiver::new(app).map_err(|e| anyhow::anyhow!("receiver refused its config: {e:?}"))?,
     );
@@ -503,6 +506,7 @@ pub fn run_with(
                 }
                 plan = StepPlan {
                     lifts: plan.lifts,
+                    height_moves: plan.height_moves,
                     ..StepPlan::default()
                 };
                 seen.clear();

@@ -16,7 +16,7 @@
 //! primary-search part is straight toward the victim, so it is ideal on both sides).
 use crate::accuracy::stats;
 use crate::closed_loop::{self, ClosedLoopConfig, Outcome, Policy, PulseRow, StartMode};
-use firmware::guidance::{GuidanceConfig, Status};
+use firmware::guidance::{GuidanceConfig, HeightPrompt, Status};
 use std::fmt::Write as _;
 use std::time::Instant;
 
@@ -40,7 +40,7 @@ pub struct Args {
     /// change was not tuned to seeds 1..=100.
     #[arg(long, default_value_t = 1)]
     pub first_seed: u64,
-    /// Run only the SOG case with calibrated step length and the lift (diagnostics).
+    /// Run only the SOG case with calibrated step length (lowering and lift; diagnostics).
     #[arg(long)]
     pub calibrated_only: bool,
     /// Print every pulse of this seed's rescue to stderr (with `--trace-case`).
@@ -62,17 +62,24 @@ pub enum Case {
     SogCalibratedNoLift,
     /// As [`Case::SogUncalibrated`], the receiver never asking for a lift.
     SogUncalibratedNoLift,
+    /// As [`Case::SogCalibrated`], the receiver never asking to be lowered to the snow
+    /// (the whole fine search 1 m above the snow, as before issue 6's lowering).
+    SogCalibratedHigh,
+    /// As [`Case::SogUncalibrated`], the receiver never asking to be lowered.
+    SogUncalibratedHigh,
     /// The classical directional search with a cross search (optimistic).
     DirectionalSearch,
 }
 
 impl Case {
     /// All cases, in report order.
-    pub const ALL: [Case; 5] = [
+    pub const ALL: [Case; 7] = [
         Case::SogCalibrated,
         Case::SogUncalibrated,
         Case::SogCalibratedNoLift,
         Case::SogUncalibratedNoLift,
+        Case::SogCalibratedHigh,
+        Case::SogUncalibratedHigh,
         Case::DirectionalSearch,
     ];
 
@@ -87,8 +94,15 @@ impl Case {
     pub fn config(self, seed: u64) -> ClosedLoopConfig {
         ClosedLoopConfig {
             start: StartMode::PrimarySearch,
-            calibrated: !matches!(self, Case::SogUncalibrated | Case::SogUncalibratedNoLift),
-            lift: matches!(self, Case::SogCalibrated | Case::SogUncalibrated),
+            calibrated: !matches!(
+                self,
+                Case::SogUncalibrated | Case::SogUncalibratedNoLift | Case::SogUncalibratedHigh
+            ),
+            lift: !matches!(
+                self,
+                Case::SogCalibratedNoLift | Case::SogUncalibratedNoLift | Case::DirectionalSearch
+            ),
+            lower: !matches!(self, Case::SogCalibratedHigh | Case::SogUncalibratedHigh),
             policy: if self == Case::DirectionalSearch {
                 Policy::DirectionalSearch
             } else {
@@ -100,10 +114,20 @@ impl Case {
 
     fn title(self) -> &'static str {
         match self {
-            Case::SogCalibrated => "SOG, calibrated step length, lift in the fine search",
-            Case::SogUncalibrated => "SOG, no step-length calibration, lift in the fine search",
-            Case::SogCalibratedNoLift => "SOG, calibrated step length, no lift",
-            Case::SogUncalibratedNoLift => "SOG, no step-length calibration, no lift",
+            Case::SogCalibrated => {
+                "SOG, calibrated step length, receiver lowered to the snow in the fine search"
+            }
+            Case::SogUncalibrated => {
+                "SOG, no step-length calibration, receiver lowered to the snow in the fine search"
+            }
+            Case::SogCalibratedNoLift => "SOG, calibrated step length, lowered, no lift",
+            Case::SogUncalibratedNoLift => "SOG, no step-length calibration, lowered, no lift",
+            Case::SogCalibratedHigh => {
+                "SOG, calibrated step length, receiver kept 1 m above the snow (before the lowering)"
+            }
+            Case::SogUncalibratedHigh => {
+                "SOG, no step-length calibration, receiver kept 1 m above the snow (before the lowering)"
+            }
             Case::DirectionalSearch => "Directional search (DS)",
         }
     }
@@ -150,6 +174,8 @@ pub struct Rescue {
     pub failed: bool,
     /// Lifts of the receiver made when asked.
     pub lifts: u32,
+    /// Lowerings to the snow and raisings of the receiver made when asked.
+    pub height_moves: u32,
     /// Transmitter pulses from the first received one to "probe here", per phase of the
     /// search (see [`Phase`]).
     pub phases: [u32; Phase::COUNT],
@@ -171,7 +197,7 @@ pub enum Phase {
     /// Fine search over the mean (within `max(probe radius, σ_h)`): bracketing, waiting
     /// for the belief to shrink to the probe radius.
     OverMean,
-    /// Standing for a lift of the receiver.
+    /// Standing for a lift of the receiver, or to lower or raise it.
     Lift,
 }
 
@@ -195,7 +221,7 @@ impl Phase {
             Phase::ToMean => "localized, walking to the mean (≥ 2 m)",
             Phase::FineApproach => "fine search, approaching (< 2 m)",
             Phase::OverMean => "fine search, over the mean (bracketing, waiting to probe)",
-            Phase::Lift => "lift",
+            Phase::Lift => "lift, lower or raise the receiver (standing)",
         }
     }
 
@@ -206,7 +232,7 @@ impl Phase {
         match d.status {
             Status::NoSignal => Phase::NoSignal,
             Status::FluxLine => Phase::FluxLine,
-            _ if d.lift => Phase::Lift,
+            _ if d.lift || d.height_prompt != HeightPrompt::None => Phase::Lift,
             Status::Localized | Status::Probe => {
                 let h = d.horizontal_m.map_or(f64::MAX, f64::from);
                 let sig = d.uncertainty_m.map_or(0.0, f64::from);
@@ -285,6 +311,7 @@ impl Rescue {
             reinitializations: o.reinitializations,
             failed,
             lifts: o.lifts,
+            height_moves: o.height_moves,
             phases: Phase::breakdown(o),
             sigma_h_at_probe_m: o
                 .probe_t
@@ -592,8 +619,44 @@ fn phase_table(runs: &[Rescue]) -> String {
 /// One metric of a rescue.
 type Metric = fn(&Rescue) -> Option<f64>;
 
-/// The gain of the fine-search lift: probe-point and depth errors with and without it.
-fn lift_gain(all: &[Rescue]) -> String {
+/// The gain of the lowering to the snow: the default cases against the receiver kept at
+/// the walking height.
+fn lower_gain(all: &[Rescue]) -> String {
+    let head = "### Gain of the lowering to the snow (issue 6)\n\n\
+Localized within 2 m of the estimate, with the estimated victim at least the estimator's \
+shallowest modelled range (1.3 m) below a receiver lowered to 0.2 m, the receiver shows \
+\"LOWER TO SNOW\" (once): the rescuer stops, pauses 0.5 s and lowers it to 0.2 m above the \
+snow in a 1 s minimum-jerk move, then goes on step by step bent over. The accelerometer \
+measures the 0.8 m as an absolute displacement (the filter's unscaled part) and the receiver \
+tracks its height from it (depth shown = −p_z − height). Errors over the rescues that \
+reached \"probe here\"; median / mean.\n\n\
+| step length | metric | lowered | kept at 1 m |\n|---|---|---|---|\n";
+    let mut s = compare(
+        all,
+        head,
+        [
+            (Case::SogCalibrated, Case::SogCalibratedHigh),
+            (Case::SogUncalibrated, Case::SogUncalibratedHigh),
+        ],
+        ("lowerings and raisings per rescue", |r| {
+            Some(f64::from(r.height_moves))
+        }),
+    );
+    let failed = |c: Case| all.iter().filter(|r| r.case == c && r.failed).count();
+    let _ = writeln!(
+        s,
+        "\nFailures lowered / kept at 1 m: calibrated {} / {}, uncalibrated {} / {}.\n",
+        failed(Case::SogCalibrated),
+        failed(Case::SogCalibratedHigh),
+        failed(Case::SogUncalibrated),
+        failed(Case::SogUncalibratedHigh)
+    );
+    s
+}
+
+/// A with / without table of `pairs` (calibrated, uncalibrated) under `head`: probe-point
+/// and depth errors, steps / ideal and `extra`.
+fn compare(all: &[Rescue], head: &str, pairs: [(Case, Case); 2], extra: (&str, Metric)) -> String {
     let pick = |case: Case, f: Metric| -> Vec<f64> {
         all.iter()
             .filter(|r| r.case == case)
@@ -607,30 +670,15 @@ fn lift_gain(all: &[Rescue]) -> String {
             None => "–".to_string(),
         }
     };
-    let mut s = String::from(
-        "### Gain of the fine-search lift (issue 6)\n\n\
-When the horizontal distance to the estimate is below 1 m and the depth σ above 0.2 m, the \
-receiver shows \"LIFT\": the rescuer stands and lifts it 0.4 m up and down over 2 s; the \
-accelerometer-integrated vertical excursion (zero velocity at both ends) enters the filter as an \
-absolute, unscaled displacement. Errors over the rescues that reached \"probe here\"; \
-median / mean.\n\n\
-| step length | metric | with lift | without lift |\n|---|---|---|---|\n",
-    );
-    for (name, with, without) in [
-        ("calibrated", Case::SogCalibrated, Case::SogCalibratedNoLift),
-        (
-            "uncalibrated",
-            Case::SogUncalibrated,
-            Case::SogUncalibratedNoLift,
-        ),
-    ] {
+    let mut s = String::from(head);
+    for (name, (with, without)) in ["calibrated", "uncalibrated"].into_iter().zip(pairs) {
         let rows: [(&str, Metric); 4] = [
             ("probe-point error, horizontal (m)", |r| r.error_h_m),
             ("depth error at \"probe here\" (m)", |r| r.depth_error_m),
             ("steps / ideal, from the first received pulse", |r| {
                 Rescue::ratio(r.steps, r.ideal_steps)
             }),
-            ("lifts per rescue", |r| Some(f64::from(r.lifts))),
+            extra,
         ];
         for (label, f) in rows {
             let _ = writeln!(
@@ -641,6 +689,27 @@ median / mean.\n\n\
             );
         }
     }
+    s
+}
+
+/// The gain of the fine-search lift: probe-point and depth errors with and without it.
+fn lift_gain(all: &[Rescue]) -> String {
+    let head = "### Gain of the fine-search lift (issue 6)\n\n\
+When the horizontal distance to the estimate is below 1 m, the depth σ above 0.2 m and the \
+receiver was not lowered to the snow, the receiver shows \"LIFT\": the rescuer stands and \
+lifts it 0.4 m up and down over 2 s; the accelerometer-integrated vertical excursion (zero \
+velocity at both ends) enters the filter as an absolute, unscaled displacement. Both sides \
+with the lowering. Errors over the rescues that reached \"probe here\"; median / mean.\n\n\
+| step length | metric | with lift | without lift |\n|---|---|---|---|\n";
+    let mut s = compare(
+        all,
+        head,
+        [
+            (Case::SogCalibrated, Case::SogCalibratedNoLift),
+            (Case::SogUncalibrated, Case::SogUncalibratedNoLift),
+        ],
+        ("lifts per rescue", |r| Some(f64::from(r.lifts))),
+    );
     let failed = |c: Case| all.iter().filter(|r| r.case == c && r.failed).count();
     let _ = writeln!(
         s,
@@ -660,7 +729,7 @@ fn trace(case: Case, seed: u64) -> anyhow::Result<()> {
         let e = rx.estimate();
         eprintln!(
             "t {:7.2} {:10} true_d {:6.2} est_h {:>6} sig_h {:>6} walk {:>6} err_h {:>6} \
-             ncomp {:2} lift {} scale {:>6} depth {:>5} tilt_err_deg {:.2} {:.2} dr_sig {:.3} dr_steps {}",
+             ncomp {:2} lift {} hp {:?} height {:.2}/{:.2} scale {:>6} depth {:>5} tilt_err_deg {:.2} {:.2} dr_sig {:.3} dr_steps {}",
             r.t,
             r.status,
             r.true_distance_m,
@@ -670,6 +739,9 @@ fn trace(case: Case, seed: u64) -> anyhow::Result<()> {
             r.error_h_m.map_or("-".into(), |v| format!("{v:.3}")),
             r.n_components,
             u8::from(d.lift),
+            d.height_prompt,
+            d.height_m,
+            r.rx[2],
             e.map_or("-".into(), |e| format!("{:.3}", e.scale)),
             d.depth_m.map_or("-".into(), |v| format!("{v:.2}")),
             (f64::from(rx.motion().attitude().0.x) - r.true_rpy[0]).to_degrees(),
@@ -721,6 +793,7 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
         all.extend(runs);
     }
     if !args.no_lift && !args.calibrated_only {
+        report.push_str(&lower_gain(&all));
         report.push_str(&lift_gain(&all));
         report.push_str(FINDINGS);
     }
@@ -745,6 +818,46 @@ const FINDINGS: &str = "\
 The phase tables split the pulses from the first reception to \"probe here\" by what the \
 display showed; `hal-sim rescue-report --trace SEED [--trace-case sog-uncalibrated]` prints \
 one rescue pulse by pulse, `--first-seed 1000` runs a separate range of scenarios.\n\n\
+- **The fine search with the receiver lowered to the snow (issue 6, this round).** Near \
+the victim the pulse noise is dominated by k_sen·|H| (ICRA eq. 10), so the position error \
+scales with the range: a 1.5 m deep victim is 2.5 m from a receiver held at 1 m and 1.7 m from \
+one at 0.2 m. Localized within 2 m of the estimate, the receiver asks once to \
+\"LOWER TO SNOW\" (`guidance::HeightPrompt`); the lowering (≈ 0.8 m, 1 s) is measured by the \
+accelerometer (`motion::LiftTracker`, now frozen over walks and settled 0.3 s after them, so \
+that a rescuer who stops and lowers has the whole move measured) and enters the filter as an \
+absolute, unscaled displacement — it breaks the scale symmetry like the lift; the receiver \
+tracks its height from the measured moves (`Receiver::height_m`, depth shown = −p_z − \
+height) and asks to \"RAISE TO 1M\" when a lowered receiver's target is more than 6 m away. \
+Calibrated, lowered vs the checked-in build before it (receiver at 1 m), seeds 1–100 / \
+1000–1099: probe-point error max / mean / median 0.851 / 0.117 / 0.075 → 0.664 / 0.086 / \
+0.062 m and 0.834 / 0.125 / 0.080 → 0.651 / 0.112 / 0.071 m; > 0.20 m in 18 → 8 and 19 → 16 \
+runs; depth error median 0.065 → 0.044 and 0.062 → 0.051 m; steps / ideal median 1.261 → \
+1.233 and 1.292 → 1.231; failures 1 → 1 (seed 80; 1078). Without calibration the lowering \
+pins the scale: depth error median 0.380 → 0.085 and 0.383 → 0.091 m, probe-point error \
+median 0.094 → 0.066 and 0.081 → 0.076 m, steps / ideal 1.381 → 1.296 and 1.334 → 1.247, \
+failures 4 → 3 (18, 19, 53) and 3 → 2 (1063, 1078). The table above gives the same \
+comparison in this build (the case \"kept 1 m above the snow\"). Decided by measurement: (a) \
+no lowering when the estimated victim would be less than the estimator's shallowest modelled \
+range (`receiver_height + depth_min` = 1.3 m, its initialization prior) below the lowered \
+receiver, i.e. shallower than ≈ 1.1 m: lowering every victim gave max 1.836 m and 11 \
+re-initializations on seeds 1–100 (seed 21, 0.5 m deep: 0.7 m from the receiver, the \
+mixture re-initialized with a prior that cannot hold it and jumped by metres); their range \
+from 1 m is short anyway; (b) no lift once lowered: with it the uncalibrated case had 5 \
+failures and max 2.840 m on seeds 1–100 (3 and 0.380 m without); the lift stays for a \
+receiver that was not lowered (shallow victims) and is now rarely asked (see its table); (c) \
+no lowering while several victims are listed (`multi-report`): every mixture is initialized \
+with the walking height as its prior, and with several transmitters mixtures are \
+(re)initialized all along — victims found 356 / 360 with vs 360 / 360 without on seeds \
+101–130, and 600 / 604 vs 602 / 604 on seeds 1–50. The rescuer model stops, pauses 0.5 s, \
+lowers in a 1 s minimum-jerk move and walks on bent over with the same gait and step length \
+(the fine search's steps are short and deliberate either way; a slower bent-over cadence \
+would give more pulses per metre, so it is not assumed). Still missed: the 0.05 m median and \
+0.20 m max targets (0.062 / 0.071 m median, 0.664 / 0.651 m max) and 1.10 × ideal (1.23): \
+the remaining tail is deep victims (2.2–2.8 m: still 2.4–3.0 m from the lowered receiver; \
+seeds 8, 1038) and shallow ones the lowering does not reach (seeds 14, 1062: 0.4–0.5 m), and \
+the steps are spent before the fine search (flux line and the walk to the mean, see the phase \
+tables). The bullets below are from earlier rounds, their numbers from the builds of that \
+time.\n\
 - **Flux line at the edge of reception.** The failures of the calibrated case were weak \
 beacons first heard with |H| of a few σ_bkg: the classical 5 m rule (flip when |H| has not \
 grown) flipped at random there, because the best of noisy readings lies above the true value, \
@@ -836,7 +949,8 @@ const PROTOCOL: &str = "\
 Protocol (ICRA 2006 §VI): per seed a victim 40–70 m (horizontally) from the start at a random \
 bearing, 0.3–3 m deep, moment direction uniform and magnitude log-uniform in 3e-3 … 3e-2 A·m²; \
 transmitter period 0.7–1.3 s; rescuer at 0.56 m × 1.8 steps/s ≈ 1.0 m/s, receiver 1 m above the \
-snow. The same 100 scenarios for every case. Pulses carry the noise of ICRA eq. 10 \
+snow, lowered to 0.2 m in the fine search when the receiver asks (\"LOWER TO SNOW\", see the \
+gain of the lowering below; not in the cases \"kept 1 m above the snow\"). The same 100 scenarios for every case. Pulses carry the noise of ICRA eq. 10 \
 (σ_bkg = 2.59e-9 A/m, k_sen = 0.03) and a random sign, and are received only when \
 |H| ≥ 3 σ_bkg: a weak beacon is not heard from 70 m. Until the first pulse the rescuer walks \
 straight toward the victim (a primary-search strip over it); then the SOG rescuer follows the \

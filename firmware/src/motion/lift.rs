@@ -14,6 +14,18 @@
 //! velocity (a constant-bias drift) is also taken out of the position. The track is
 //! continuous across ZUPTs, and [`LiftTracker::take`] samples it at the pulse times: the
 //! vertical position change between two pulses, with its variance.
+//!
+//! Walking does not move the device vertically on average (the step bounce comes back to
+//! the same height at rest), so the track is frozen while walking and resumes once the
+//! device has been still for [`LiftConfig::zupt_s`] after the walk ("settling", with
+//! [`WALK_HEIGHT_SIGMA_M`] for the walk's unmeasured height): a rescuer who stops and
+//! then lowers the receiver has the lowering measured even though the interval since the
+//! previous pulse began with steps. A manoeuvre that starts before the device settled
+//! (its start unmeasured) drops the interval.
+
+/// Height uncertainty (m, 1σ) of the device after a walk relative to before it: the step
+/// bounce is ≈ 2 cm and comes back to rest at the same height.
+pub const WALK_HEIGHT_SIGMA_M: f32 = 0.02;
 
 /// Tuning of the lift tracker.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -73,8 +85,15 @@ pub struct LiftTracker {
     carried_var: f32,
     /// A manoeuvre touched the interval since the last pulse.
     touched: bool,
-    /// The walker stood throughout since the last pulse.
+    /// The interval since the last pulse is usable (no gap, no manoeuvre started before
+    /// the device settled, none too long).
     valid: bool,
+    /// After a walk, waiting for the device to be still before integrating again.
+    settling: bool,
+    /// The walker walked since the last pulse.
+    walked: bool,
+    /// Part of the manoeuvre under way was handed out at a pulse.
+    open_out: bool,
 }
 
 impl LiftTracker {
@@ -94,6 +113,9 @@ impl LiftTracker {
             carried_var: 0.0,
             touched: false,
             valid: false,
+            settling: true,
+            walked: false,
+            open_out: false,
         }
     }
 
@@ -107,15 +129,39 @@ impl LiftTracker {
 
     /// One sample: `dt` (s) since the previous one, world-vertical acceleration
     /// `a_vertical` (specific force minus g, m/s²), and whether the walker stands (no
-    /// steps under way). Walking invalidates the interval up to the next pulse.
+    /// steps under way). Walking freezes the track until the device is still again; bad
+    /// samples invalidate the interval up to the next pulse.
     pub fn update(&mut self, dt: f32, a_vertical: f32, standing: bool) {
         let dt_ok = dt.is_finite() && dt > 0.0;
-        if !standing || !dt_ok || !a_vertical.is_finite() {
+        if !dt_ok || !a_vertical.is_finite() {
             self.valid = false;
             self.stop();
             return;
         }
+        if !standing {
+            // The height is taken as unchanged over the walk (see the module docs).
+            if self.moved {
+                if self.open_out {
+                    // A manoeuvre handed out in part, then cut short by steps: its end is
+                    // not measured.
+                    self.valid = false;
+                } else {
+                    // The start of the walk (its first dip before the step is detected):
+                    // part of the walk, not a manoeuvre.
+                    self.z = self.z_anchor;
+                }
+            }
+            self.walked = true;
+            self.settling = true;
+            self.quiet_s = 0.0;
+            self.stop();
+            return;
+        }
         let a = a_vertical - self.bias;
+        if self.settling {
+            self.settle(dt, a);
+            return;
+        }
         self.tau += dt;
         let v0 = self.v;
         self.v += a * dt;
@@ -148,6 +194,24 @@ impl LiftTracker {
         }
     }
 
+    /// After a walk: wait for [`LiftConfig::zupt_s`] of stillness before integrating; a
+    /// manoeuvre under way meanwhile has an unmeasured start and drops the interval.
+    fn settle(&mut self, dt: f32, a: f32) {
+        if libm::fabsf(a) > self.cfg.move_acc_m_s2 {
+            self.valid = false;
+        }
+        if libm::fabsf(a) < self.cfg.quiet_acc_m_s2 {
+            self.quiet_s += dt;
+        } else {
+            self.quiet_s = 0.0;
+        }
+        if self.quiet_s >= self.cfg.zupt_s {
+            self.settling = false;
+            self.quiet_s = 0.0;
+            self.stop();
+        }
+    }
+
     /// Drops the interval up to the next pulse (e.g. after a gap in the IMU stream).
     pub fn interrupt(&mut self) {
         self.valid = false;
@@ -156,6 +220,7 @@ impl LiftTracker {
 
     /// Restart the integration at rest at the current position.
     fn stop(&mut self) {
+        self.open_out = false;
         self.v = 0.0;
         self.tau = 0.0;
         self.moved = false;
@@ -176,17 +241,53 @@ impl LiftTracker {
         } else {
             0.0
         };
+        let walk = if self.walked {
+            WALK_HEIGHT_SIGMA_M * WALK_HEIGHT_SIGMA_M
+        } else {
+            0.0
+        };
         let out = (self.valid && (self.touched || self.moved))
             .then_some((
                 self.z - self.z_pulse,
-                self.e_pulse + self.carried_var + open,
+                self.e_pulse + self.carried_var + open + walk,
             ))
             .filter(|(dz, var)| dz.is_finite() && var.is_finite());
         self.z_pulse = self.z;
         self.e_pulse = open;
         self.carried_var = 0.0;
         self.touched = self.moved;
+        self.open_out = self.moved;
         self.valid = true;
+        self.walked = false;
+        out
+    }
+
+    /// As [`LiftTracker::take`], but only the manoeuvres completed (closed by a
+    /// zero-velocity update) by now: one under way is left for a later pulse, and
+    /// dropped as part of the walk if steps follow it (the first dip of a walk is seen
+    /// before its step is detected). For walking, where only a deliberate lift or
+    /// lowering is to be measured.
+    pub fn take_closed(&mut self) -> Option<(f32, f32)> {
+        if !self.moved {
+            return self.take();
+        }
+        let walk = if self.walked {
+            WALK_HEIGHT_SIGMA_M * WALK_HEIGHT_SIGMA_M
+        } else {
+            0.0
+        };
+        let out = (self.valid && self.touched)
+            .then_some((
+                self.z_anchor - self.z_pulse,
+                self.e_pulse + self.carried_var + walk,
+            ))
+            .filter(|(dz, var)| dz.is_finite() && var.is_finite());
+        self.z_pulse = self.z_anchor;
+        self.e_pulse = 0.0;
+        self.carried_var = 0.0;
+        self.touched = false;
+        self.valid = true;
+        self.walked = false;
         out
     }
 }
@@ -293,5 +394,91 @@ mod tests {
             tr.update(0.01, 0.6, true);
         }
         assert_eq!(tr.take(), None);
+    }
+
+    /// Vertical acceleration of a minimum-jerk move of `dz` over `period` s from `t0`.
+    fn min_jerk_acc(t: f32, t0: f32, dz: f32, period: f32) -> f32 {
+        let u = (t - t0) / period;
+        if (0.0..=1.0).contains(&u) {
+            dz / (period * period) * (60.0 * u - 180.0 * u * u + 120.0 * u * u * u)
+        } else {
+            0.0
+        }
+    }
+
+    #[test]
+    fn a_lowering_right_after_a_walk_is_measured_whole() {
+        // Walking (a 2.6 m/s² bounce) until t = 1 s, a pulse during the walk, then
+        // standing; settled, the receiver is lowered 0.8 m over 1 s from t = 1.6 s.
+        let mut tr = LiftTracker::new(LiftConfig::default());
+        let mut got = None;
+        for k in 1..400 {
+            let t = k as f32 * 0.01;
+            let walking = t < 1.0;
+            let a = if walking {
+                2.6 * libm::cosf(2.0 * PI * 1.8 * t)
+            } else {
+                min_jerk_acc(t, 1.6, -0.8, 1.0)
+            };
+            tr.update(0.01, a, !walking);
+            if k == 50 {
+                assert_eq!(tr.take(), None, "walking alone is no manoeuvre");
+            }
+        }
+        if let Some((dz, var)) = tr.take() {
+            got = Some((dz, var));
+            assert!((dz + 0.8).abs() < 0.01, "dz {dz}");
+            // The walk's unmeasured height is in the variance.
+            assert!(var >= WALK_HEIGHT_SIGMA_M * WALK_HEIGHT_SIGMA_M && var.sqrt() < 0.05);
+        }
+        assert!(got.is_some(), "the lowering was dropped");
+    }
+
+    #[test]
+    fn a_move_starting_before_the_device_settled_drops_the_interval() {
+        let mut tr = LiftTracker::new(LiftConfig::default());
+        for k in 1..300 {
+            let t = k as f32 * 0.01;
+            let walking = t < 1.0;
+            // The lowering starts 0.1 s after the last step: its start is unmeasured.
+            let a = if walking {
+                2.6 * libm::cosf(2.0 * PI * 1.8 * t)
+            } else {
+                min_jerk_acc(t, 1.1, -0.8, 1.0)
+            };
+            tr.update(0.01, a, !walking);
+        }
+        assert_eq!(tr.take(), None);
+    }
+
+    #[test]
+    fn the_first_dip_of_a_walk_is_not_a_manoeuvre_for_take_closed() {
+        // Settled, then the first 0.2 s of a step (a dip) before the step detector calls
+        // it walking; a pulse falls in the dip.
+        let run = |closed: bool| {
+            let mut tr = LiftTracker::new(LiftConfig::default());
+            for _ in 0..100 {
+                tr.update(0.01, 0.0, true);
+            }
+            let _ = tr.take();
+            for k in 0..20 {
+                tr.update(0.01, -2.0 * libm::sinf(PI * k as f32 / 20.0), true);
+            }
+            let mid = if closed { tr.take_closed() } else { tr.take() };
+            for _ in 0..50 {
+                tr.update(0.01, 0.0, false);
+            }
+            for _ in 0..100 {
+                tr.update(0.01, 0.0, true);
+            }
+            let after = if closed { tr.take_closed() } else { tr.take() };
+            (mid, after)
+        };
+        let (mid, after) = run(true);
+        assert_eq!(mid, None, "a manoeuvre under way is left for later");
+        assert_eq!(after, None, "and dropped as part of the walk");
+        // The open variant (lift mode) hands the dip out at once.
+        let (mid, _) = run(false);
+        assert!(mid.is_some_and(|(dz, _)| dz < -0.01), "{mid:?}");
     }
 }

@@ -163,6 +163,9 @@ pub struct Motion {
     lift_mode: bool,
     /// Lift mode held after it was turned off until the manoeuvre under way ends.
     lift_hold: bool,
+    /// Sum of the accelerometer-measured vertical displacements handed out so far (m, up
+    /// positive): the device's height change since the start (see [`Motion::vertical_m`]).
+    vertical_m: f32,
 }
 
 /// A pulse's cut of the motion when several victims share it ([`Motion::take_split`]).
@@ -204,6 +207,22 @@ fn attach_lift(lift: Option<(f32, f32)>, interval: &Interval, d: &mut Displaceme
     d.absolute_cov = e * e.transpose() * var.max(0.0) + Mat3::identity() * 1e-6;
 }
 
+/// The lift tracker's vertical excursion since the previous pulse, also added to the
+/// running height change `vertical_m` ([`Motion::vertical_m`]). `open`: in lift mode, a
+/// manoeuvre under way is handed out in part (the pulse at the top of a lift sees it);
+/// otherwise only completed ones (see [`LiftTracker::take_closed`]).
+fn take_lift(lift: &mut LiftTracker, vertical_m: &mut f32, open: bool) -> Option<(f32, f32)> {
+    let out = if open {
+        lift.take()
+    } else {
+        lift.take_closed()
+    };
+    if let Some((dz, _)) = out {
+        *vertical_m += dz;
+    }
+    out
+}
+
 /// Where a pulse cuts the running interval.
 struct Cut {
     t: f32,
@@ -230,6 +249,7 @@ impl Motion {
             lift: LiftTracker::new(LiftConfig::default()),
             lift_mode: false,
             lift_hold: false,
+            vertical_m: 0.0,
         }
     }
 
@@ -397,7 +417,9 @@ impl Motion {
             closing.add_stride(c.t, c.partial, c.yaw_now, c.var, &noise);
         }
         let mut d = closing.close(c.t, &c.rk, &noise, c.bias_var);
-        attach_lift(self.lift.take(), &closing, &mut d);
+        let open = self.lift_mode || self.lift_hold;
+        let lift = take_lift(&mut self.lift, &mut self.vertical_m, open);
+        attach_lift(lift, &closing, &mut d);
         let mut next = Interval::new(c.t, c.rk);
         if c.partial > 0.0 {
             next.add_stride(c.t, -c.partial, c.yaw_now, c.var, &noise);
@@ -442,7 +464,9 @@ impl Motion {
             ..noise
         };
         let mut cut = closing.close(c.t, &c.rk, &floorless, c.bias_var);
-        attach_lift(self.lift.take(), &closing, &mut cut);
+        let open = self.lift_mode || self.lift_hold;
+        let lift = take_lift(&mut self.lift, &mut self.vertical_m, open);
+        attach_lift(lift, &closing, &mut cut);
         run.interval = Interval::new(c.t, c.rk);
         // The partial step carries its own stride errors only (the floors come once per
         // victim interval, see above).
@@ -612,6 +636,14 @@ impl Motion {
         self.lift_hold |= on;
     }
 
+    /// Height change of the device since the start (m, up positive): the sum of the
+    /// vertical displacements measured by the accelerometer while standing (lifts,
+    /// lowering to the snow and raising again) and handed to the estimator at the pulses.
+    /// Vertical moves made while walking are not measured (nor seen by the estimator).
+    pub fn vertical_m(&self) -> f32 {
+        self.vertical_m
+    }
+
     /// Whether lift mode is on (see [`set_lift_mode`](Self::set_lift_mode)).
     pub fn lift_mode(&self) -> bool {
         self.lift_mode
@@ -730,6 +762,53 @@ mod tests {
         assert!((rpy - Rpy::new(0.0, 0.05, 0.3)).norm() < 1e-3);
         assert!(cov[(2, 2)] > 0.0);
         assert!((m.scale_sigma() - 0.02).abs() < 1e-7);
+    }
+
+    #[test]
+    fn lowering_and_raising_in_lift_mode_track_the_height() {
+        // Standing, device pitched 0.05 rad: lowered 0.8 m over 1 s from t = 2 s
+        // (minimum jerk), pulses during and after; then raised again from t = 6 s.
+        let mut m = running();
+        m.set_lift_mode(true);
+        let r = rotation_from_rpy(&Rpy::new(0.0, 0.05, 0.3));
+        let mag = r.transpose() * earth();
+        let jerk = |t: f32, t0: f32, dz: f32| {
+            let u = t - t0;
+            if (0.0..=1.0).contains(&u) {
+                dz * (60.0 * u - 180.0 * u * u + 120.0 * u * u * u)
+            } else {
+                0.0
+            }
+        };
+        let mut after_lowering = f32::NAN;
+        for k in 50..900 {
+            let t = k as f32 * 0.01;
+            let a = jerk(t, 2.0, -0.8) + jerk(t, 6.0, 0.8);
+            let acc = r.transpose() * Vec3::new(0.0, 0.0, a + GRAVITY);
+            m.on_imu(t, &acc, &Vec3::zeros(), &mag).unwrap();
+            if k % 90 == 0 {
+                let _ = m.take_displacement(t);
+            }
+            if k == 500 {
+                after_lowering = m.vertical_m();
+            }
+        }
+        let _ = m.take_displacement(9.0);
+        assert!((after_lowering + 0.8).abs() < 0.02, "{after_lowering}");
+        assert!(m.vertical_m().abs() < 0.02, "raised: {}", m.vertical_m());
+        assert_eq!(m.total_steps(), 0, "the moves are not taken for steps");
+        // A rescuer who ignores the prompt: nothing measured, nothing changes.
+        let mut still = running();
+        still.set_lift_mode(true);
+        let acc = r.transpose() * Vec3::new(0.0, 0.0, GRAVITY);
+        for k in 50..400 {
+            let t = k as f32 * 0.01;
+            still.on_imu(t, &acc, &Vec3::zeros(), &mag).unwrap();
+            if k % 90 == 0 {
+                let _ = still.take_displacement(t);
+            }
+        }
+        assert_eq!(still.vertical_m(), 0.0);
     }
 
     #[test]
