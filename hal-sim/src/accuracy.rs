@@ -374,6 +374,9 @@ static IEKF_ITERATIONS: std::sync::atomic::AtomicU8 = std::sync::atomic::AtomicU
 /// `--iekf-min-weight` of the running report (bits of an `f32`; NaN: the default).
 static IEKF_MIN_WEIGHT: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(u32::MAX);
 
+/// `--scale-tau-s` of the running report (bits of an `f32`; NaN: the default).
+static SCALE_TAU_S: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(u32::MAX);
+
 /// The filter configuration a receiver with `receiver` settings uses for `case`.
 fn filter_config(
     case: Case,
@@ -407,6 +410,10 @@ fn filter_config(
         sigma_bkg: sensors.pulse.sigma_bkg_a_per_m as f32,
         k_sen: sensors.pulse.k_sen as f32,
         scale_sigma: base.scale_sigma * noise.scale_multiplier as f32,
+        scale_tau_s: match f32::from_bits(SCALE_TAU_S.load(std::sync::atomic::Ordering::Relaxed)) {
+            t if t.is_nan() => base.scale_tau_s,
+            t => t,
+        },
         ..base
     }
 }
@@ -1158,6 +1165,10 @@ pub struct Args {
     /// removed, and the single-Gaussian oracle starts): ≈ 20 × the calibrated case's time.
     #[arg(long)]
     pub budget: bool,
+    /// Override of `SogConfig::scale_tau_s` (the scale's correlation time; 0 = a
+    /// walk-long constant), for the ablation.
+    #[arg(long)]
+    pub scale_tau_s: Option<f32>,
     /// Cases to run (default: all).
     #[arg(long, value_enum, value_delimiter = ',')]
     pub cases: Vec<Case>,
@@ -1290,8 +1301,11 @@ pub fn case_report(case: Case, runs: &[RunResult]) -> String {
         .iter()
         .take(5)
         .map(|r| {
+            let sigmas = bound_normalized_mean(std::slice::from_ref(*r))
+                .map(|d2| format!(", {:.1} bound σ", d2.sqrt()))
+                .unwrap_or_default();
             format!(
-                "seed {} ({:.3} m)",
+                "seed {} ({:.3} m{sigmas})",
                 r.seed,
                 r.final_error_m.unwrap_or(f64::NAN)
             )
@@ -1341,6 +1355,10 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
     }
     if let Some(w) = args.iekf_min_weight {
         flags.push_str(&format!(" --iekf-min-weight {w}"));
+    }
+    if let Some(t) = args.scale_tau_s {
+        SCALE_TAU_S.store(t.to_bits(), std::sync::atomic::Ordering::Relaxed);
+        flags.push_str(&format!(" --scale-tau-s {t}"));
     }
     if args.budget {
         flags.push_str(" --budget");
