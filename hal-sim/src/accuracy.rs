@@ -58,6 +58,14 @@ pub struct MotionNoise {
     /// Absolute attitude error on every pulse (roll/pitch from gravity, yaw from the
     /// tilt-compensated magnetometer): tilt and yaw standard deviations, rad.
     pub attitude_sigma_rad: [f64; 2],
+    /// Multiplier of the walk-long scale error (the true one and the filter's prior
+    /// `SogConfig::scale_sigma`), for the error budget; 1 normally.
+    #[serde(skip)]
+    pub scale_multiplier: f64,
+    /// Multiplier of the pulse noise (ICRA eq. 10: background and sensor terms, simulated
+    /// and declared), for the error budget; 1 normally.
+    #[serde(skip)]
+    pub pulse_multiplier: f64,
 }
 
 impl Default for MotionNoise {
@@ -69,6 +77,8 @@ impl Default for MotionNoise {
             sigma_r_rad: 0.01,
             scale_sigma_uncalibrated: 0.08,
             attitude_sigma_rad: [0.02, 0.05],
+            scale_multiplier: 1.0,
+            pulse_multiplier: 1.0,
         }
     }
 }
@@ -134,6 +144,13 @@ pub struct RunResult {
     /// 3-D error at every pulse (NaN before initialization), for error-vs-time plots.
     #[serde(skip)]
     pub error_trace: Vec<f64>,
+    /// Final position error vector (estimate − truth, W axes), m.
+    #[serde(skip)]
+    pub final_error_vec: Option<V3>,
+    /// Open-loop robocentric runs: the Cramér–Rao bound on the final position's
+    /// covariance (W axes, m², [`crate::accuracy_bound`]).
+    #[serde(skip)]
+    pub final_bound: Option<M3>,
 }
 
 fn gauss(rng: &mut impl Rng) -> f64 {
@@ -187,6 +204,8 @@ impl Tracker {
                 host_us_per_step: 0.0,
                 max_components: 0,
                 error_trace: Vec::new(),
+                final_error_vec: None,
+                final_bound: None,
             },
             step_time_s: 0.0,
             steps: 0,
@@ -212,6 +231,7 @@ impl Tracker {
         let err = e.norm();
         r.error_trace.push(err);
         r.final_error_m = Some(err);
+        r.final_error_vec = Some(e);
         r.final_error_h_m = Some(e.x.hypot(e.y));
         r.final_error_z_m = Some(e.z.abs());
         if truth.norm() < 20.0 && r.error_at_20m.is_none() {
@@ -354,8 +374,17 @@ static IEKF_ITERATIONS: std::sync::atomic::AtomicU8 = std::sync::atomic::AtomicU
 /// `--iekf-min-weight` of the running report (bits of an `f32`; NaN: the default).
 static IEKF_MIN_WEIGHT: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(u32::MAX);
 
+/// `--scale-tau-s` of the running report (bits of an `f32`; NaN: the default).
+static SCALE_TAU_S: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(u32::MAX);
+
 /// The filter configuration a receiver with `receiver` settings uses for `case`.
-fn filter_config(case: Case, sensors: &SensorConfig, depth: [f64; 2], m: [f64; 2]) -> SogConfig {
+fn filter_config(
+    case: Case,
+    sensors: &SensorConfig,
+    depth: [f64; 2],
+    m: [f64; 2],
+    noise: &MotionNoise,
+) -> SogConfig {
     let base = match case {
         Case::Known => SogConfig::known_trajectory(),
         Case::Uncalibrated => SogConfig::default().with_calibrated_step(false),
@@ -380,6 +409,11 @@ fn filter_config(case: Case, sensors: &SensorConfig, depth: [f64; 2], m: [f64; 2
         depth_max: depth[1] as f32,
         sigma_bkg: sensors.pulse.sigma_bkg_a_per_m as f32,
         k_sen: sensors.pulse.k_sen as f32,
+        scale_sigma: base.scale_sigma * noise.scale_multiplier as f32,
+        scale_tau_s: match f32::from_bits(SCALE_TAU_S.load(std::sync::atomic::Ordering::Relaxed)) {
+            t if t.is_nan() => base.scale_tau_s,
+            t => t,
+        },
         ..base
     }
 }
@@ -442,7 +476,70 @@ pub fn run_open_loop(case: Case, seed: u64, noise: &MotionNoise) -> RunResult {
         noise,
         |c| DefaultSog::new(c).ok().map(Box::new),
         sog_components,
+        None,
     )
+}
+
+/// As [`run_open_loop`] (same scenario and noise draws), but as soon as the mixture is
+/// initialized it is replaced by a single Gaussian near the truth ("oracle start"): an
+/// EKF without mixture approximation whose prior is `N(x̂₀, P₀)` with `x̂₀` drawn from
+/// `N(truth, P₀)` (so the prior is consistent, not the truth itself). `P₀` is diagonal:
+/// the attitude's variances for Ψ, `(rel_sigma · range)²` per position axis,
+/// `(3 rel_sigma · |m|)²` per moment axis (`|m| ∝ r³` under the scale invariance) and
+/// the filter's scale prior `N(1, scale_sigma²)` (the scale is not told). The final
+/// error of this filter is the error budget's reference for what the pulses and the
+/// dead reckoning allow without the mixture's approximations.
+pub fn run_open_loop_oracle(
+    case: Case,
+    seed: u64,
+    noise: &MotionNoise,
+    rel_sigma: f64,
+) -> RunResult {
+    open_loop(
+        case,
+        seed,
+        noise,
+        |c| DefaultSog::new(c).ok().map(Box::new),
+        sog_components,
+        Some((rel_sigma, reseed_sog)),
+    )
+}
+
+fn reseed_sog(
+    f: &mut DefaultSog,
+    x: &nalgebra::SVector<f32, 10>,
+    p: &nalgebra::SMatrix<f32, 10, 10>,
+) -> bool {
+    f.reset_to_single(x, p).is_ok()
+}
+
+/// Replaces an estimator's belief by one Gaussian (mean, covariance; see
+/// [`run_open_loop_oracle`]); `false` if it refused.
+type Reseed<E> = fn(&mut E, &nalgebra::SVector<f32, 10>, &nalgebra::SMatrix<f32, 10, 10>) -> bool;
+
+/// The oracle start's prior `(mean, covariance)` around the true state: attitude `rpy`
+/// (W), transmitter offset `p` (W axes, m), moment `m` (A·m²).
+fn oracle_prior(
+    rng: &mut ChaCha8Rng,
+    noise: &MotionNoise,
+    rel_sigma: f64,
+    scale_sigma: f64,
+    (rpy, p, m): (&V3, &V3, &V3),
+) -> (nalgebra::SVector<f32, 10>, nalgebra::SMatrix<f32, 10, 10>) {
+    let [tilt, yaw] = noise.attitude_sigma_rad;
+    let sp = rel_sigma * p.norm();
+    let sm = 3.0 * rel_sigma * m.norm();
+    let sig = [tilt, tilt, yaw, sp, sp, sp, sm, sm, sm, scale_sigma];
+    let truth = [rpy.x, rpy.y, rpy.z, p.x, p.y, p.z, m.x, m.y, m.z, 1.0];
+    let mut mean = nalgebra::SVector::<f32, 10>::zeros();
+    let mut cov = nalgebra::SMatrix::<f32, 10, 10>::zeros();
+    for i in 0..10 {
+        // The scale's prior mean is the calibration (1), never the truth.
+        let draw = if i == 9 { 0.0 } else { sig[i] * gauss(rng) };
+        mean[i] = (truth[i] + draw) as f32;
+        cov[(i, i)] = (sig[i] * sig[i]) as f32;
+    }
+    (mean, cov)
 }
 
 /// As [`run_open_loop`] (same scenario, same motion noise), with any estimator: `make`
@@ -454,7 +551,7 @@ pub fn run_open_loop_with(
     noise: &MotionNoise,
     make: impl FnOnce(&SogConfig) -> Option<Box<dyn Estimator>>,
 ) -> RunResult {
-    open_loop(case, seed, noise, |c| make(&c), |_| Vec::new())
+    open_loop(case, seed, noise, |c| make(&c), |_| Vec::new(), None)
 }
 
 fn open_loop<E: Estimator + ?Sized, B: std::ops::DerefMut<Target = E>>(
@@ -463,6 +560,7 @@ fn open_loop<E: Estimator + ?Sized, B: std::ops::DerefMut<Target = E>>(
     noise: &MotionNoise,
     make: impl FnOnce(SogConfig) -> Option<B>,
     components: Components<E>,
+    mut oracle: Option<(f64, Reseed<E>)>,
 ) -> RunResult {
     let preset = match case {
         Case::Paths => {
@@ -479,6 +577,8 @@ fn open_loop<E: Estimator + ?Sized, B: std::ops::DerefMut<Target = E>>(
     if case == Case::Known {
         low_noise(&mut cfg.sensors);
     }
+    cfg.sensors.pulse.sigma_bkg_a_per_m *= noise.pulse_multiplier;
+    cfg.sensors.pulse.k_sen *= noise.pulse_multiplier;
     let sim = simulate(&cfg);
     let Some(tx) = sim.world.transmitters.first() else {
         return Tracker::new(seed, f64::NAN).finish();
@@ -491,15 +591,27 @@ fn open_loop<E: Estimator + ?Sized, B: std::ops::DerefMut<Target = E>>(
         (Some(pdr), false) => pdr.step_length_m / sim.draw.gait.step_length_m,
         (None, false) => 1.0 + noise.scale_sigma_uncalibrated * gauss(&mut rng),
     };
+    let scale = 1.0 + (scale - 1.0) * noise.scale_multiplier;
     let fcfg = filter_config(
         case,
         &cfg.sensors,
         cfg.depth_m,
         cfg.transmitter.moment_range,
+        noise,
     );
+    let scale_sigma = f64::from(fcfg.scale_sigma);
+    // The bound's scale prior is the one the scale is drawn from (the filter may
+    // declare a looser one).
+    let true_scale_sigma = noise.scale_multiplier
+        * if cfg.calibrated {
+            cfg.step_calibration_rel_sigma
+        } else {
+            noise.scale_sigma_uncalibrated
+        };
     let Some(mut filter) = make(fcfg) else {
         return Tracker::new(seed, f64::NAN).finish();
     };
+    let mut oracle_rng = ChaCha8Rng::seed_from_u64(seed ^ 0x0a5c_1e00);
     let start = sim.world.rescuer_state(0.0).p;
     let tx_p = V3::from(tx.position);
     let mut tracker = Tracker::new(seed, (tx_p - start).xy().norm());
@@ -511,6 +623,15 @@ fn open_loop<E: Estimator + ?Sized, B: std::ops::DerefMut<Target = E>>(
         );
     }
     let mut previous: Option<(V3, M3)> = None;
+    let mut bound_in = crate::accuracy_bound::BoundInput {
+        sigma_r: noise.sigma_r_rad,
+        attitude_sigma: noise.attitude_sigma_rad,
+        scale,
+        scale_sigma: true_scale_sigma,
+        transmitter: (tx_p, V3::from(tx.moment)),
+        pulse_noise: (cfg.sensors.pulse.sigma_bkg_a_per_m, cfg.sensors.pulse.k_sen),
+        ..Default::default()
+    };
     for pulse in sim.session.pulses() {
         let s = sim.world.rescuer_state(pulse.t);
         let motion = match &previous {
@@ -532,11 +653,35 @@ fn open_loop<E: Estimator + ?Sized, B: std::ops::DerefMut<Target = E>>(
                 t: pulse.t as f32,
             },
         );
+        if let Some((rel, reseed)) = oracle
+            && filter.is_initialized()
+        {
+            let (x, p) = oracle_prior(
+                &mut oracle_rng,
+                noise,
+                rel,
+                scale_sigma,
+                (&s.rpy, &(tx_p - s.p), &V3::from(tx.moment)),
+            );
+            if reseed(&mut *filter, &x, &p) {
+                oracle = None;
+            }
+        }
         tracker.record(filter.estimate(), &(tx_p - s.p));
         if filter.is_initialized() {
+            if !exact {
+                if let Some((p0, r0)) = &previous {
+                    let walked = (r0.transpose() * (s.p - p0)).xy().norm();
+                    bound_in
+                        .translation_sigmas
+                        .push(noise.translation_sigmas(walked * scale));
+                }
+                bound_in.poses.push((s.p, s.rpy));
+            }
             previous = Some((s.p, s.rot));
         }
     }
+    tracker.result.final_bound = crate::accuracy_bound::final_position_bound(&bound_in);
     tracker.finish()
 }
 
@@ -619,12 +764,13 @@ pub fn run_closed_loop(seed: u64, noise: &MotionNoise) -> RunResult {
     );
     let sensors = SensorConfig::default();
     let tx_p = V3::from(tx.position);
-    let scale = 1.0 + 0.02 * gauss(&mut rng);
+    let scale = 1.0 + 0.02 * noise.scale_multiplier * gauss(&mut rng);
     let fcfg = filter_config(
         Case::ClosedLoop,
         &sensors,
         [0.3, 3.0],
         TransmitterSpec::default().moment_range,
+        noise,
     );
     let Ok(mut filter) = DefaultSog::new(fcfg) else {
         return Tracker::new(seed, d0).finish();
@@ -647,6 +793,15 @@ pub fn run_closed_loop(seed: u64, noise: &MotionNoise) -> RunResult {
         best_h_at: V3::zeros(),
     };
     let mut previous: Option<(V3, M3)> = None;
+    let mut bound_in = crate::accuracy_bound::BoundInput {
+        sigma_r: noise.sigma_r_rad,
+        attitude_sigma: noise.attitude_sigma_rad,
+        scale,
+        scale_sigma: 0.02 * noise.scale_multiplier,
+        transmitter: (tx_p, V3::from(tx.moment)),
+        pulse_noise: (sensors.pulse.sigma_bkg_a_per_m, sensors.pulse.k_sen),
+        ..Default::default()
+    };
     let mut probe_hold = 0;
     let mut going_to_mean = false;
     let mut sure_hold = 0;
@@ -686,6 +841,13 @@ pub fn run_closed_loop(seed: u64, noise: &MotionNoise) -> RunResult {
         let est = filter.estimate();
         tracker.record(est, &(tx_p - walker.p));
         if filter.is_initialized() {
+            if let Some((p0, r0)) = &previous {
+                let walked = (r0.transpose() * (walker.p - p0)).xy().norm();
+                bound_in
+                    .translation_sigmas
+                    .push(noise.translation_sigmas(walked * scale));
+            }
+            bound_in.poses.push((walker.p, rpy));
             previous = Some((walker.p, rot));
         }
         // Guidance for the next period (IROS III-C): follow the flux line until the
@@ -755,6 +917,7 @@ pub fn run_closed_loop(seed: u64, noise: &MotionNoise) -> RunResult {
             walker.p += V3::new(heading.cos(), heading.sin(), 0.0) * len;
         }
     }
+    tracker.result.final_bound = crate::accuracy_bound::final_position_bound(&bound_in);
     tracker.finish()
 }
 
@@ -786,6 +949,201 @@ pub fn stats(values: impl Iterator<Item = Option<f64>>) -> Option<[f64; 3]> {
     Some([v[n - 1], v.iter().sum::<f64>() / n as f64, median])
 }
 
+/// The error sources of the calibrated case, for the error budget.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Source {
+    /// Horizontal dead-reckoning noise `σ_t` (m/√m).
+    Translation,
+    /// Vertical dead-reckoning noise `σ_z` (m/√m).
+    Vertical,
+    /// Hand wobble per interval (m).
+    Hand,
+    /// Per-interval rotation noise `σ_r` (rad).
+    Rotation,
+    /// Walk-long step-length scale error (and the filter's prior on it).
+    Scale,
+    /// Absolute roll/pitch error.
+    Tilt,
+    /// Absolute yaw error.
+    Yaw,
+    /// Pulse noise (ICRA eq. 10).
+    Pulse,
+}
+
+/// Every source, in the budget's order.
+pub const SOURCES: [Source; 8] = [
+    Source::Translation,
+    Source::Vertical,
+    Source::Hand,
+    Source::Rotation,
+    Source::Scale,
+    Source::Tilt,
+    Source::Yaw,
+    Source::Pulse,
+];
+
+/// Multiplier standing for a removed source: 10 % of its level (1 % of its variance),
+/// not 0, so every declared covariance stays positive definite and the pulses keep a
+/// noise floor (the error's variance adds up over the sources, so 1 % of a source's
+/// variance leaves ≈ nothing of its share).
+pub const REMOVED: f64 = 0.1;
+
+/// `noise` with source `source` multiplied by `k` (the true error and the filter's
+/// declared variance alike).
+pub fn scaled(noise: &MotionNoise, source: Source, k: f64) -> MotionNoise {
+    let mut n = *noise;
+    match source {
+        Source::Translation => n.sigma_t_m_per_sqrt_m *= k,
+        Source::Vertical => n.sigma_z_m_per_sqrt_m *= k,
+        Source::Hand => n.sigma_hand_m *= k,
+        Source::Rotation => n.sigma_r_rad *= k,
+        Source::Scale => n.scale_multiplier *= k,
+        Source::Tilt => n.attitude_sigma_rad[0] *= k,
+        Source::Yaw => n.attitude_sigma_rad[1] *= k,
+        Source::Pulse => n.pulse_multiplier *= k,
+    }
+    n
+}
+
+/// `noise` with every motion source but `keep` removed ([`REMOVED`]), the pulse noise
+/// kept (it is the measurement: without it the updates are only as good as their
+/// linearization); `None` keeps the pulse noise alone.
+pub fn only(noise: &MotionNoise, keep: Option<Source>) -> MotionNoise {
+    SOURCES
+        .iter()
+        .filter(|&&s| Some(s) != keep && s != Source::Pulse)
+        .fold(*noise, |n, &s| scaled(&n, s, REMOVED))
+}
+
+/// Draws per run of the bound-efficient estimator's error (see [`bound_stats`]).
+const BOUND_DRAWS: usize = 200;
+
+/// The final 3-D error an efficient unbiased estimator would have on `runs`, from
+/// their Cramér–Rao bounds ([`crate::accuracy_bound`]): errors drawn from
+/// `N(0, C_bound)`, [`BOUND_DRAWS`] per run (seeded), pooled; `[99th percentile, mean,
+/// median]` (the 99th percentile stands for the largest of 100 runs), each divided by
+/// the run's final distance when `relative`; horizontal errors when `horizontal`.
+pub fn bound_stats(runs: &[RunResult], relative: bool, horizontal: bool) -> Option<[f64; 3]> {
+    let mut rng = ChaCha8Rng::seed_from_u64(0xb0_0d);
+    let mut draws: Vec<f64> = Vec::new();
+    for r in runs {
+        let Some(l) = r.final_bound.and_then(|c| c.cholesky()) else {
+            continue;
+        };
+        let d = if relative { r.final_distance_m } else { 1.0 };
+        for _ in 0..BOUND_DRAWS {
+            let n = V3::new(gauss(&mut rng), gauss(&mut rng), gauss(&mut rng));
+            let e = l.l() * n;
+            let e = if horizontal { e.xy().norm() } else { e.norm() };
+            draws.push(e / d);
+        }
+    }
+    let [_, mean, median] = stats(draws.iter().map(|&x| Some(x)))?;
+    draws.sort_by(f64::total_cmp);
+    let p99 = draws
+        .get(((draws.len() - 1) as f64 * 0.99) as usize)
+        .copied()?;
+    Some([p99, mean, median])
+}
+
+/// Mean over `runs` of the final error normalized by the bound, `eᵀ C_bound⁻¹ e`: 3 for
+/// an efficient estimator, more when the estimator loses information.
+pub fn bound_normalized_mean(runs: &[RunResult]) -> Option<f64> {
+    let v: Vec<f64> = runs
+        .iter()
+        .filter_map(|r| {
+            let inv = r.final_bound?.try_inverse()?;
+            let e = r.final_error_vec?;
+            Some((e.transpose() * inv * e)[(0, 0)])
+        })
+        .collect();
+    (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+}
+
+/// One row of the error budget: final 3-D error max/mean/median, truth inside 3σ, mean
+/// NEES, the bound's efficient error and the error normalized by the bound.
+fn budget_row(label: &str, runs: &[RunResult]) -> String {
+    let inside: usize = runs.iter().map(|r| r.inside_3sigma).sum();
+    let evaluated: usize = runs.iter().map(|r| r.evaluated_steps).sum();
+    let nees: f64 = runs.iter().map(|r| r.nees_sum).sum();
+    format!(
+        "| {label} | {} | {:.1} | {:.2} | {} | {:.2} |\n",
+        fmt3(stats(runs.iter().map(|r| r.final_error_m))),
+        100.0 * inside as f64 / evaluated.max(1) as f64,
+        nees / evaluated.max(1) as f64,
+        fmt3(bound_stats(runs, false, false)),
+        bound_normalized_mean(runs).unwrap_or(f64::NAN),
+    )
+}
+
+/// The error budget of the calibrated case (seeds `first_seed..`): the pulse noise with
+/// each motion source, every source removed, and the oracle starts (an EKF without
+/// mixture near the truth). Every variant sees the same scenarios and the same noise
+/// draws (only their amplitudes change), so the rows compare run by run.
+pub fn budget(first_seed: u64, tries: u64, noise: &MotionNoise) -> String {
+    use rayon::prelude::*;
+    let case = Case::Calibrated;
+    let seeds = first_seed..first_seed + tries;
+    let run = |n: MotionNoise| -> Vec<RunResult> {
+        seeds
+            .clone()
+            .into_par_iter()
+            .map(|seed| run_open_loop(case, seed, &n))
+            .collect()
+    };
+    let mut s = String::from(
+        "| variant | max | mean | median | inside 3σ (%) | mean NEES | bound: p99 | bound: mean | bound: median | eᵀC⁻¹e mean |\n|---|---|---|---|---|---|---|---|---|---|\n",
+    );
+    let base = run(*noise);
+    s.push_str(&budget_row("SOG, all sources (default)", &base));
+    s.push_str(&budget_row(
+        "SOG, pulse noise only (motion sources removed)",
+        &run(only(noise, None)),
+    ));
+    for src in SOURCES {
+        eprintln!("accuracy budget: {src:?} …");
+        if src != Source::Pulse {
+            s.push_str(&budget_row(
+                &format!("SOG, pulse noise + {src:?} only"),
+                &run(only(noise, Some(src))),
+            ));
+        }
+        s.push_str(&budget_row(
+            &format!("SOG, all but {src:?}"),
+            &run(scaled(noise, src, REMOVED)),
+        ));
+    }
+    for rel in ORACLE_REL_SIGMAS {
+        let o: Vec<RunResult> = seeds
+            .clone()
+            .into_par_iter()
+            .map(|seed| run_open_loop_oracle(case, seed, noise, rel))
+            .collect();
+        let name = format!("EKF, oracle start (σ_p {:.0} % of range)", 100.0 * rel);
+        s.push_str(&budget_row(&name, &o));
+        s.push_str(&paired_line(&base, &o));
+    }
+    s
+}
+
+/// Relative position σ of the oracle starts in the budget.
+pub const ORACLE_REL_SIGMAS: [f64; 2] = [0.05, 0.15];
+
+/// A table row comparing the SOG's final error with the oracle's, run by run.
+fn paired_line(sog: &[RunResult], oracle: &[RunResult]) -> String {
+    let d: Vec<Option<f64>> = sog
+        .iter()
+        .zip(oracle)
+        .map(|(a, b)| Some(a.final_error_m? - b.final_error_m?))
+        .collect();
+    let worse = d.iter().flatten().filter(|&&x| x > 0.0).count();
+    format!(
+        "| ↳ SOG − oracle, per run (SOG worse in {worse} of {}) | {} | | | | | | |\n",
+        d.iter().flatten().count(),
+        fmt3(stats(d.into_iter())),
+    )
+}
+
 /// Options of `hal-sim accuracy`.
 #[derive(clap::Args, Debug, Clone)]
 pub struct Args {
@@ -803,6 +1161,14 @@ pub struct Args {
     /// component's update is iterated), for the ablation.
     #[arg(long)]
     pub iekf_min_weight: Option<f32>,
+    /// Also run the error budget of the calibrated case (each noise source alone and
+    /// removed, and the single-Gaussian oracle starts): ≈ 20 × the calibrated case's time.
+    #[arg(long)]
+    pub budget: bool,
+    /// Override of `SogConfig::scale_tau_s` (the scale's correlation time; 0 = a
+    /// walk-long constant), for the ablation.
+    #[arg(long)]
+    pub scale_tau_s: Option<f32>,
     /// Cases to run (default: all).
     #[arg(long, value_enum, value_delimiter = ',')]
     pub cases: Vec<Case>,
@@ -909,6 +1275,22 @@ pub fn case_report(case: Case, runs: &[RunResult]) -> String {
         fmt3(comps),
     );
     let _ = writeln!(s, "{}", consistency_line(runs));
+    if let (Some(b), Some(rel), Some(h), Some(norm)) = (
+        bound_stats(runs, false, false),
+        bound_stats(runs, true, false),
+        bound_stats(runs, false, true),
+        bound_normalized_mean(runs),
+    ) {
+        let _ = writeln!(
+            s,
+            "Cramér–Rao bound of the final 3-D error (`accuracy_bound`: an efficient unbiased estimator given the same pulses, dead reckoning and attitude) p99 / mean / median {} m, {:.1} / {:.1} / {:.1} % of the final distance, horizontal {} m; this filter's final error normalized by the bound, eᵀC⁻¹e, mean {norm:.2} (3 if efficient).",
+            fmt3(Some(b)),
+            100.0 * rel[0],
+            100.0 * rel[1],
+            100.0 * rel[2],
+            fmt3(Some(h)),
+        );
+    }
     let mut worst: Vec<&RunResult> = runs.iter().collect();
     worst.sort_by(|a, b| {
         b.final_error_m
@@ -919,8 +1301,11 @@ pub fn case_report(case: Case, runs: &[RunResult]) -> String {
         .iter()
         .take(5)
         .map(|r| {
+            let sigmas = bound_normalized_mean(std::slice::from_ref(*r))
+                .map(|d2| format!(", {:.1} bound σ", d2.sqrt()))
+                .unwrap_or_default();
             format!(
-                "seed {} ({:.3} m)",
+                "seed {} ({:.3} m{sigmas})",
                 r.seed,
                 r.final_error_m.unwrap_or(f64::NAN)
             )
@@ -971,6 +1356,13 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
     if let Some(w) = args.iekf_min_weight {
         flags.push_str(&format!(" --iekf-min-weight {w}"));
     }
+    if let Some(t) = args.scale_tau_s {
+        SCALE_TAU_S.store(t.to_bits(), std::sync::atomic::Ordering::Relaxed);
+        flags.push_str(&format!(" --scale-tau-s {t}"));
+    }
+    if args.budget {
+        flags.push_str(" --budget");
+    }
     let mut report = format!(
         "## SOGs accuracy (`cargo run -p hal-sim --release -- accuracy --tries {}{flags}`)\n\nMotion noise fed to the filter (true displacement plus errors, until PDR feeds it): {}\n\n",
         args.tries,
@@ -987,6 +1379,17 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
         );
         report.push_str(&case_report(case, &runs));
         all_runs.extend(runs.into_iter().map(|r| (case, r)));
+    }
+    if args.budget {
+        let start = Instant::now();
+        let table = budget(args.first_seed, args.tries, &noise);
+        eprintln!(
+            "accuracy: budget done in {:.1} s",
+            start.elapsed().as_secs_f64()
+        );
+        report.push_str(&format!(
+            "### Error budget of the calibrated case (final 3-D error, m)\n\n{table}\n"
+        ));
     }
     if let Some(path) = &args.runs {
         let mut f = std::io::BufWriter::new(std::fs::File::create(path)?);
@@ -1022,6 +1425,43 @@ mod tests {
         assert!(line.contains("inside on 90.0 % of 40 steps"), "{line}");
         assert!(line.contains("mean NEES 3.00"), "{line}");
         assert!(line.contains("inside on 70.0 % of 40 updates"), "{line}");
+    }
+
+    #[test]
+    fn ablation_scales_one_source_and_keeps_the_pulse_noise() {
+        let n = MotionNoise::default();
+        let s = scaled(&n, Source::Yaw, 0.5);
+        assert_eq!(s.attitude_sigma_rad, [0.02, 0.025]);
+        assert_eq!(s.sigma_t_m_per_sqrt_m, n.sigma_t_m_per_sqrt_m);
+        let o = only(&n, Some(Source::Scale));
+        assert_eq!(o.scale_multiplier, 1.0);
+        assert_eq!(o.pulse_multiplier, 1.0);
+        assert!((o.sigma_hand_m - REMOVED * n.sigma_hand_m).abs() < 1e-15);
+        assert!((o.attitude_sigma_rad[1] - REMOVED * n.attitude_sigma_rad[1]).abs() < 1e-15);
+    }
+
+    #[test]
+    fn the_bound_of_a_seeded_run_shrinks_when_the_motion_noise_is_removed() {
+        // Same scenario and pulses: with the dead-reckoning and attitude noise at 10 %,
+        // the information about the final position can only grow.
+        let noise = MotionNoise::default();
+        let full = run_open_loop(Case::Calibrated, 3, &noise);
+        let quiet = run_open_loop(Case::Calibrated, 3, &only(&noise, None));
+        let (b_full, b_quiet) = (full.final_bound.unwrap(), quiet.final_bound.unwrap());
+        assert!(b_full.cholesky().is_some());
+        assert!(
+            b_quiet.trace() < 0.5 * b_full.trace(),
+            "{} vs {}",
+            b_quiet.trace(),
+            b_full.trace()
+        );
+        let norm = bound_normalized_mean(std::slice::from_ref(&full)).unwrap();
+        assert!(norm.is_finite() && norm >= 0.0);
+        let [p99, mean, median] = bound_stats(std::slice::from_ref(&full), false, false).unwrap();
+        assert!(median < p99 && mean > 0.0);
+        // The oracle start runs the same scenario and ends initialized.
+        let o = run_open_loop_oracle(Case::Calibrated, 3, &noise, 0.05);
+        assert!(o.final_error_m.is_some_and(f64::is_finite));
     }
 
     #[test]

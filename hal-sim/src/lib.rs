@@ -3,6 +3,7 @@
 #![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used, clippy::panic))]
 
 pub mod accuracy;
+pub mod accuracy_bound;
 pub mod baselines;
 pub mod budget_data;
 pub mod bus;

@@ -120,6 +120,34 @@ impl<const N: usize> SogFilter<N> {
         })
     }
 
+    /// Replaces an initialized mixture by one Gaussian with mean `[Ψ (rad), p_T (m),
+    /// m (A·m²), s]` and covariance `cov` (same units): the "oracle start" of the
+    /// accuracy report's error budget, an EKF without any mixture approximation to
+    /// compare the mixture with. `InvalidConfig` before the first initialization (the
+    /// pulse clock starts there); bad values leave the state unchanged.
+    pub fn reset_to_single(
+        &mut self,
+        mean: &nalgebra::SVector<f32, 10>,
+        cov: &nalgebra::SMatrix<f32, 10, 10>,
+    ) -> Result<(), EstimateError> {
+        if !self.initialized {
+            return Err(EstimateError::InvalidConfig);
+        }
+        if !mean.iter().all(|v| v.is_finite()) {
+            return Err(EstimateError::NonFinite);
+        }
+        check_covariance(cov)?;
+        // External → internal units: the moment rows and columns in mA·m².
+        let mut d = super::model::StateVec::repeat(1.0);
+        d.fixed_rows_mut::<3>(super::model::I_M).fill(MOMENT_SCALE);
+        let x = mean.component_mul(&d);
+        let p = cov.component_mul(&(d * d.transpose()));
+        self.comps.clear();
+        let _ = self.comps.push(Component::new(x, &p, 0.0));
+        self.inconsistent_pulses = 0;
+        Ok(())
+    }
+
     /// Measurement noise variance per axis for a pulse (ICRA eq. 10), in (µA/m)².
     fn noise_var(&self, z: &Vec3) -> f32 {
         let bkg = self.config.sigma_bkg * FIELD_SCALE;
@@ -625,6 +653,45 @@ mod tests {
             "{name}: horizontal median {med_h:.3} max {max_h:.3}; 3-D median {med_3:.3}; inside 3σ {cons:.3}; max components {maxc}"
         );
         (med_h, max_h, med_3, cons)
+    }
+
+    #[test]
+    fn reset_to_single_replaces_the_mixture_or_refuses_and_keeps_it() {
+        let mut f = DefaultSog::new(SogConfig::default()).unwrap();
+        let mut mean = nalgebra::SVector::<f32, 10>::zeros();
+        mean[3] = 3.0;
+        mean[5] = -2.0;
+        mean[6] = 0.01; // A·m²
+        mean[9] = 1.0;
+        let cov = nalgebra::SMatrix::<f32, 10, 10>::from_diagonal_element(1e-4);
+        assert_eq!(
+            f.reset_to_single(&mean, &cov),
+            Err(EstimateError::InvalidConfig)
+        );
+        let att = Attitude::with_sigmas(Rpy::zeros(), 0.02, 0.05);
+        let pulse = Pulse {
+            h: Vec3::new(1e-6, 2e-6, -1e-6),
+            t: 0.0,
+        };
+        f.step(&Displacement::zero(), &att, &pulse).unwrap();
+        assert!(f.len() > 1);
+        let before = f.clone();
+        let mut bad = mean;
+        bad[4] = f32::NAN;
+        assert_eq!(f.reset_to_single(&bad, &cov), Err(EstimateError::NonFinite));
+        let mut asym = cov;
+        asym[(3, 4)] = 1e-5;
+        assert_eq!(
+            f.reset_to_single(&mean, &asym),
+            Err(EstimateError::InvalidCovariance)
+        );
+        assert_eq!(f, before);
+        f.reset_to_single(&mean, &cov).unwrap();
+        assert_eq!(f.len(), 1);
+        let e = f.estimate().unwrap();
+        assert_eq!(e.p, Vec3::new(3.0, 0.0, -2.0));
+        assert!((e.moment.x - 0.01).abs() < 1e-7, "{:?}", e.moment);
+        assert!((e.cov[(0, 0)] - 1e-4).abs() < 1e-9);
     }
 
     #[test]
