@@ -1,7 +1,8 @@
 //! `replay` on session logs that hal-sim did not write: `tests/tools/independent_log.py`
 //! generates them from the spec alone (its own walk — a pursuit curve from off-bearing —
 //! gait, device pitch, pulse timing, IMU rates of 50–200 Hz, unknown keys and record
-//! types, the standard's moment range). The firmware's pipeline must find the victim from
+//! types, the standard's moment range; a walker who ignores the receiver's prompts). The
+//! firmware's pipeline must find the victim from
 //! the physics, whatever simulator made the log.
 //!
 //! Measured when written (`tests/tools/independent_log.py SEED DIR` then `hal-sim replay`,
@@ -86,13 +87,16 @@ fn replay_and_score(seed: u32, extra: &[&str]) -> Scored {
 
 #[test]
 fn replay_finds_the_victim_in_logs_from_an_independent_generator() {
-    let cases: [(u32, &[&str]); 6] = [
+    let cases: [(u32, &[&str]); 7] = [
         (1, &[]),
         (2, &[]),
         (3, &[]),
         (4, &["--imu-hz", "50"]),
         (5, &["--imu-hz", "200"]),
         (6, &["--stand", "3"]),
+        // Walks over the victim and 8 m on, never heeding the receiver's prompts (the
+        // "lower to snow" prompt shows as it passes): steps still count.
+        (7, &["--pass", "--on-bearing"]),
     ];
     let mut rel = Vec::new();
     let mut inside = 0;
@@ -118,7 +122,7 @@ fn replay_finds_the_victim_in_logs_from_an_independent_generator() {
         inside += usize::from(s.nees <= 14.16);
     }
     rel.sort_by(f64::total_cmp);
-    let median = 0.5 * (rel[2] + rel[3]);
+    let median = rel[rel.len() / 2];
     assert!(median < 0.10, "median relative error {median:.3}");
-    assert!(inside >= 5, "truth inside 3σ in {inside} of 6");
+    assert!(inside >= 6, "truth inside 3σ in {inside} of 7");
 }

@@ -13,7 +13,7 @@ carries unknown keys and an unknown record type (readers must ignore them), and 
 moment range of the receiver file is the standard's (spec example), not hal-sim's.
 
 Usage: independent_log.py SEED OUT_DIR [--imu-hz HZ] [--stand S] [--on-bearing] [--cut S]
-       [--uncalibrated]
+       [--uncalibrated] [--pass]
 Writes OUT_DIR/session.jsonl, OUT_DIR/truth.jsonl, OUT_DIR/receiver.json.
 Pure Python (math, random, json): runs anywhere python3 runs.
 """
@@ -127,7 +127,14 @@ def main():
     dist0 = rng.uniform(25.0, 40.0)
     start = [dist0 * math.cos(bearing), dist0 * math.sin(bearing)]
     stand = float(sys.argv[sys.argv.index("--stand") + 1]) if "--stand" in sys.argv else 0.0
-    track, step_len = walk(rng, victim, start, rng.uniform(2.0, 4.0), stand, "--on-bearing" not in sys.argv)
+    aim, stop = victim, rng.uniform(2.0, 4.0)
+    if "--pass" in sys.argv:
+        # --pass: walk over the victim and on, to a point 8 m beyond it (a primary-search
+        # strip): the receiver's guidance prompts are not followed by this walker.
+        far = math.hypot(victim[0] - start[0], victim[1] - start[1])
+        aim = [victim[i] + 8.0 * (victim[i] - start[i]) / far for i in range(2)] + [victim[2]]
+        stop = 0.5
+    track, step_len = walk(rng, aim, start, stop, stand, "--on-bearing" not in sys.argv)
     gyr_bias = [rng.uniform(-0.005, 0.005) for _ in range(3)]
     sigma_bkg, k_sen = 2.59e-9, 0.03
 
