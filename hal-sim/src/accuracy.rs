@@ -1412,7 +1412,7 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
         flags.push_str(" --budget");
     }
     let mut report = format!(
-        "## SOGs accuracy (`cargo run -p hal-sim --release -- accuracy --tries {}{flags}`)\n\nMotion noise fed to the filter (true displacement plus errors, until PDR feeds it): {}\n\n",
+        "## SOGs accuracy (`cargo run -p hal-sim --release -- accuracy --tries {}{flags}`)\n\nMotion noise fed to the filter in every case but `Imu` (true displacement plus errors, to isolate the estimator; `Imu` runs the firmware's own attitude filter and PDR on the simulated IMU): {}\n\n",
         args.tries,
         serde_json::to_string(&noise)?
     );
