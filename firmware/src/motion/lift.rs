@@ -169,12 +169,7 @@ impl LiftTracker {
         if libm::fabsf(a) > self.cfg.move_acc_m_s2 {
             self.moved = true;
         }
-        if libm::fabsf(a) < self.cfg.quiet_acc_m_s2 {
-            self.quiet_s += dt;
-        } else {
-            self.quiet_s = 0.0;
-        }
-        if self.quiet_s >= self.cfg.zupt_s {
+        if self.still_long_enough(dt, a) {
             // Zero-velocity update.
             if self.moved {
                 // A constant bias grows the velocity error linearly: half of the final
@@ -194,18 +189,24 @@ impl LiftTracker {
         }
     }
 
+    /// Counts the time `|a|` (bias-corrected, m/s²) stays below the quiet threshold;
+    /// true once it has lasted a zero-velocity update's [`LiftConfig::zupt_s`].
+    fn still_long_enough(&mut self, dt: f32, a: f32) -> bool {
+        if libm::fabsf(a) < self.cfg.quiet_acc_m_s2 {
+            self.quiet_s += dt;
+        } else {
+            self.quiet_s = 0.0;
+        }
+        self.quiet_s >= self.cfg.zupt_s
+    }
+
     /// After a walk: wait for [`LiftConfig::zupt_s`] of stillness before integrating; a
     /// manoeuvre under way meanwhile has an unmeasured start and drops the interval.
     fn settle(&mut self, dt: f32, a: f32) {
         if libm::fabsf(a) > self.cfg.move_acc_m_s2 {
             self.valid = false;
         }
-        if libm::fabsf(a) < self.cfg.quiet_acc_m_s2 {
-            self.quiet_s += dt;
-        } else {
-            self.quiet_s = 0.0;
-        }
-        if self.quiet_s >= self.cfg.zupt_s {
+        if self.still_long_enough(dt, a) {
             self.settling = false;
             self.quiet_s = 0.0;
             self.stop();
