@@ -407,25 +407,38 @@ mod tests {
         }
     }
 
-    #[test]
-    fn a_lowering_right_after_a_walk_is_measured_whole() {
-        // Walking (a 2.6 m/s² bounce) until t = 1 s, a pulse during the walk, then
-        // standing; settled, the receiver is lowered 0.8 m over 1 s from t = 1.6 s.
+    /// Walks (a 2.6 m/s² bounce) until t = 1 s, then stands and lowers the receiver
+    /// 0.8 m over 1 s from `lower_at`, for `samples` 10 ms samples; `at_sample` sees the
+    /// tracker after every one.
+    fn walk_then_lower(
+        lower_at: f32,
+        samples: usize,
+        mut at_sample: impl FnMut(usize, &mut LiftTracker),
+    ) -> LiftTracker {
         let mut tr = LiftTracker::new(LiftConfig::default());
-        let mut got = None;
-        for k in 1..400 {
+        for k in 1..samples {
             let t = k as f32 * 0.01;
             let walking = t < 1.0;
             let a = if walking {
                 2.6 * libm::cosf(2.0 * PI * 1.8 * t)
             } else {
-                min_jerk_acc(t, 1.6, -0.8, 1.0)
+                min_jerk_acc(t, lower_at, -0.8, 1.0)
             };
             tr.update(0.01, a, !walking);
+            at_sample(k, &mut tr);
+        }
+        tr
+    }
+
+    #[test]
+    fn a_lowering_right_after_a_walk_is_measured_whole() {
+        // A pulse during the walk; settled, the receiver is lowered from t = 1.6 s.
+        let mut got = None;
+        let mut tr = walk_then_lower(1.6, 400, |k, tr| {
             if k == 50 {
                 assert_eq!(tr.take(), None, "walking alone is no manoeuvre");
             }
-        }
+        });
         if let Some((dz, var)) = tr.take() {
             got = Some((dz, var));
             assert!((dz + 0.8).abs() < 0.01, "dz {dz}");
@@ -437,18 +450,8 @@ mod tests {
 
     #[test]
     fn a_move_starting_before_the_device_settled_drops_the_interval() {
-        let mut tr = LiftTracker::new(LiftConfig::default());
-        for k in 1..300 {
-            let t = k as f32 * 0.01;
-            let walking = t < 1.0;
-            // The lowering starts 0.1 s after the last step: its start is unmeasured.
-            let a = if walking {
-                2.6 * libm::cosf(2.0 * PI * 1.8 * t)
-            } else {
-                min_jerk_acc(t, 1.1, -0.8, 1.0)
-            };
-            tr.update(0.01, a, !walking);
-        }
+        // The lowering starts 0.1 s after the last step: its start is unmeasured.
+        let mut tr = walk_then_lower(1.1, 300, |_, _| {});
         assert_eq!(tr.take(), None);
     }
 
