@@ -248,7 +248,7 @@ impl DrStats {
         let [ex, ey] = row.displacement_error_m;
         let [xx, xy, yy] = row.displacement_cov_m2;
         let det = xx * yy - xy * xy;
-        if !(det > 0.0) || !ex.is_finite() || !ey.is_finite() {
+        if det.is_nan() || det <= 0.0 || !ex.is_finite() || !ey.is_finite() {
             return;
         }
         let nees = (ex * ex * yy - 2.0 * ex * ey * xy + ey * ey * xx) / det;
