@@ -166,6 +166,12 @@ pub struct PulseRow {
     pub displacement_sigma_h_m: f64,
     /// Steps counted in that displacement.
     pub displacement_steps: u16,
+    /// That displacement's error: the dead-reckoned translation minus the true one, both
+    /// in the device frame at the previous pulse, forward and left (m; zero at the first
+    /// pulse).
+    pub displacement_error_m: [f64; 2],
+    /// Its covariance's forward–left block `[xx, xy, yy]` (m²).
+    pub displacement_cov_m2: [f64; 3],
     /// The display after the pulse.
     #[serde(skip)]
     pub display: DisplayModel,
@@ -659,6 +665,8 @@ pub fn run(
     let lag_ticks = (cfg.lag_s / DT).round().max(0.0) as usize;
 
     let mut window = PoseWindow::default();
+    // True pose at the previous processed pulse (dead-reckoning consistency rows).
+    let mut prev_pose: Option<(V3, M3)> = None;
     let mut seen: VecDeque<Seen> = VecDeque::with_capacity(lag_ticks + 2);
     let mut plan = StepPlan::default();
     let mut rows = Vec::new();
@@ -709,6 +717,17 @@ pub fn run(
                 } else if let Some(d) = Some(rx.motion().clone().take_displacement(centre as f32))
                     && let Ok(display) = rx.on_pulse(centre as f32, &h, None)
                 {
+                    let true_move = prev_pose.map_or(V3::zeros(), |(pp, pr): (V3, M3)| {
+                        pr.transpose() * (p1.p - pp)
+                    });
+                    let dr_move = prev_pose.map_or(true_move, |_| {
+                        V3::new(
+                            f64::from(d.translation.x),
+                            f64::from(d.translation.y),
+                            f64::from(d.translation.z),
+                        )
+                    });
+                    prev_pose = Some((p1.p, rot));
                     let est = rx.estimate();
                     let victim_est = est.map(|e| {
                         [
@@ -728,6 +747,12 @@ pub fn run(
                         true_rpy: p1.rpy.into(),
                         displacement_sigma_h_m: f64::from(d.cov[(0, 0)] + d.cov[(1, 1)]).sqrt(),
                         displacement_steps: d.steps,
+                        displacement_error_m: [dr_move.x - true_move.x, dr_move.y - true_move.y],
+                        displacement_cov_m2: [
+                            f64::from(d.cov[(0, 0)]),
+                            f64::from(d.cov[(0, 1)]),
+                            f64::from(d.cov[(1, 1)]),
+                        ],
                         display,
                         status: display.status.as_str(),
                     };

@@ -181,6 +181,108 @@ pub struct Rescue {
     pub phases: [u32; Phase::COUNT],
     /// The receiver's own horizontal uncertainty (largest σ, m) at "probe here".
     pub sigma_h_at_probe_m: Option<f64>,
+    /// Dead-reckoning consistency of the displacements between pulses up to "probe
+    /// here", per kind of interval (see [`DrKind`]).
+    pub dead_reckoning: [DrStats; DrKind::COUNT],
+}
+
+/// Kind of interval between two pulses, for the dead-reckoning consistency table.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DrKind {
+    /// Flux line or walking to the mean (2 m or more to go).
+    Walk,
+    /// Fine search (less than 2 m to go, over the mean, or standing for a height move):
+    /// at least one step counted.
+    FineSteps,
+    /// Fine search, no step counted (standing, turning on the spot, lowering).
+    FineNoStep,
+}
+
+impl DrKind {
+    /// Number of kinds.
+    pub const COUNT: usize = 3;
+    /// All kinds, in report order.
+    pub const ALL: [DrKind; Self::COUNT] = [DrKind::Walk, DrKind::FineSteps, DrKind::FineNoStep];
+
+    fn label(self) -> &'static str {
+        match self {
+            DrKind::Walk => "flux line and walk to the mean",
+            DrKind::FineSteps => "fine search, steps counted",
+            DrKind::FineNoStep => "fine search, no step counted",
+        }
+    }
+
+    fn of(row: &PulseRow) -> Option<DrKind> {
+        match Phase::of(row) {
+            Phase::NoSignal => None,
+            Phase::FluxLine | Phase::ToMean => Some(DrKind::Walk),
+            _ if row.displacement_steps > 0 => Some(DrKind::FineSteps),
+            _ => Some(DrKind::FineNoStep),
+        }
+    }
+}
+
+/// χ² (2 degrees of freedom) exceeded with probability 0.1 %.
+const CHI2_2_999: f64 = 13.816;
+
+/// Sums over the intervals of one kind: the dead-reckoned horizontal translation against
+/// the true one, normalized by the translation covariance the firmware hands the filter.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct DrStats {
+    /// Intervals.
+    pub n: u32,
+    /// Sum of the forward error (m): its mean is the bias along the device's heading.
+    pub forward_sum_m: f64,
+    /// Sum of the squared horizontal error (m²).
+    pub err2_sum_m2: f64,
+    /// Sum of the covariance's horizontal trace (m²).
+    pub var_sum_m2: f64,
+    /// Sum of the normalized squared error `eᵀ C⁻¹ e` (2 on average when consistent).
+    pub nees_sum: f64,
+    /// Intervals whose `eᵀ C⁻¹ e` exceeds the χ² 99.9 % point (0.1 % when consistent).
+    pub over: u32,
+}
+
+impl DrStats {
+    fn add(&mut self, row: &PulseRow) {
+        let [ex, ey] = row.displacement_error_m;
+        let [xx, xy, yy] = row.displacement_cov_m2;
+        let det = xx * yy - xy * xy;
+        if det.is_nan() || det <= 0.0 || !ex.is_finite() || !ey.is_finite() {
+            return;
+        }
+        let nees = (ex * ex * yy - 2.0 * ex * ey * xy + ey * ey * xx) / det;
+        self.n += 1;
+        self.forward_sum_m += ex;
+        self.err2_sum_m2 += ex * ex + ey * ey;
+        self.var_sum_m2 += xx + yy;
+        self.nees_sum += nees;
+        self.over += u32::from(nees > CHI2_2_999);
+    }
+
+    fn merge(&mut self, o: &DrStats) {
+        self.n += o.n;
+        self.forward_sum_m += o.forward_sum_m;
+        self.err2_sum_m2 += o.err2_sum_m2;
+        self.var_sum_m2 += o.var_sum_m2;
+        self.nees_sum += o.nees_sum;
+        self.over += o.over;
+    }
+
+    /// Per-interval statistics from the dead reckoning of one rescue, up to its
+    /// "probe here" (the first row is the start: no displacement before it).
+    fn of_rescue(o: &Outcome) -> [DrStats; DrKind::COUNT] {
+        let mut st = [DrStats::default(); DrKind::COUNT];
+        let upto = o.probe_t.unwrap_or(f64::INFINITY);
+        for r in o.rows.iter().skip(1).filter(|r| r.t <= upto) {
+            if let Some(k) = DrKind::of(r).and_then(|k| DrKind::ALL.iter().position(|x| *x == k))
+                && let Some(s) = st.get_mut(k)
+            {
+                s.add(r);
+            }
+        }
+        st
+    }
 }
 
 /// What the display told the rescuer between two pulses (the phase-time breakdown).
@@ -318,6 +420,7 @@ impl Rescue {
                 .and(o.rows.last())
                 .and_then(|r| r.display.uncertainty_m)
                 .map(f64::from),
+            dead_reckoning: DrStats::of_rescue(o),
         }
     }
 
@@ -571,6 +674,9 @@ pub fn case_report(case: Case, runs: &[Rescue]) -> String {
     if case != Case::DirectionalSearch {
         s.push_str(&phase_table(runs));
     }
+    if case == Case::SogCalibrated {
+        s.push_str(&dead_reckoning_table(runs));
+    }
     let _ = writeln!(
         s,
         "Largest errors: {}. Slowest: {}.\n",
@@ -613,6 +719,40 @@ fn phase_table(runs: &[Rescue]) -> String {
     }
     let ideal = done.iter().filter_map(|r| r.ideal_steps).sum::<f64>() / done.len().max(1) as f64;
     let _ = writeln!(s, "| total (ideal {ideal:.1}) | {total:.1} | 100 % | |\n");
+    s
+}
+
+/// The dead reckoning's consistency per kind of interval, over all rescues of a case.
+fn dead_reckoning_table(runs: &[Rescue]) -> String {
+    let mut s = String::from(
+        "\nDead-reckoning consistency of the motion between pulses up to \"probe here\" \
+         (every rescue): the firmware's horizontal translation against the true one, both in \
+         the device frame at the previous pulse, normalized by the covariance it hands the \
+         filter (consistent: mean eᵀC⁻¹e 2, 0.1 % above the χ² 99.9 % point 13.8):\n\n\
+         | interval | count | mean forward error (m) | RMS error (m) | RMS σ (m) | mean eᵀC⁻¹e | above 13.8 |\n\
+         |---|---|---|---|---|---|---|\n",
+    );
+    for (k, kind) in DrKind::ALL.iter().enumerate() {
+        let mut t = DrStats::default();
+        for r in runs {
+            if let Some(x) = r.dead_reckoning.get(k) {
+                t.merge(x);
+            }
+        }
+        let n = f64::from(t.n.max(1));
+        let _ = writeln!(
+            s,
+            "| {} | {} | {:+.3} | {:.3} | {:.3} | {:.2} | {:.1} % |",
+            kind.label(),
+            t.n,
+            t.forward_sum_m / n,
+            (t.err2_sum_m2 / n).sqrt(),
+            (t.var_sum_m2 / n).sqrt(),
+            t.nees_sum / n,
+            100.0 * f64::from(t.over) / n
+        );
+    }
+    s.push('\n');
     s
 }
 
@@ -987,5 +1127,31 @@ mod tests {
         assert!(r.phases[3] + r.phases[4] > 0, "{:?}", r.phases);
         let table = phase_table(&[r]);
         assert!(table.contains("| flux line |"), "{table}");
+    }
+
+    #[test]
+    fn the_walk_dead_reckoning_is_consistent_and_the_fine_search_is_counted() {
+        let r = run_one(Case::SogCalibrated, 2).expect("run");
+        let [walk, steps, no_step] = r.dead_reckoning;
+        // Every interval up to the probe is classified (the first received pulse has no
+        // displacement before it).
+        let counted: u32 = r.dead_reckoning.iter().map(|s| s.n).sum();
+        let heard = r.phases.iter().sum::<u32>() - r.phases[0];
+        assert!(
+            counted + 1 >= heard && counted <= heard,
+            "{counted} vs {heard}"
+        );
+        // Walking, the PDR's covariance covers its error (a frame or sign slip in the
+        // comparison would give metre errors against a decimetre σ).
+        let n = f64::from(walk.n);
+        assert!(walk.n > 20, "{walk:?}");
+        assert!(walk.nees_sum / n < 3.0, "{walk:?}");
+        assert!((walk.err2_sum_m2 / n).sqrt() < 0.3, "{walk:?}");
+        assert!(steps.n + no_step.n > 0, "{steps:?} {no_step:?}");
+        let table = dead_reckoning_table(&[r]);
+        assert!(
+            table.contains("| fine search, no step counted |"),
+            "{table}"
+        );
     }
 }

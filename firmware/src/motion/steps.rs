@@ -22,6 +22,12 @@ pub struct StepDetectorConfig {
     pub max_interval_s: f32,
     /// Cut-off of the low-pass filter on the vertical acceleration, Hz.
     pub lowpass_hz: f32,
+    /// |vertical acceleration| (m/s², gravity removed) below which the device counts as
+    /// quiet: a walking gait swings through several m/s² every step.
+    pub quiet_m_s2: f32,
+    /// Time quiet (s) after which the walk has ended and the step under way when the
+    /// walker stopped has been completed.
+    pub stop_quiet_s: f32,
 }
 
 impl Default for StepDetectorConfig {
@@ -32,6 +38,8 @@ impl Default for StepDetectorConfig {
             min_interval_s: 0.3,
             max_interval_s: 1.2,
             lowpass_hz: 3.0,
+            quiet_m_s2: 0.25,
+            stop_quiet_s: 0.25,
         }
     }
 }
