@@ -958,7 +958,48 @@ const FINDINGS: &str = "\
 The phase tables split the pulses from the first reception to \"probe here\" by what the \
 display showed; `hal-sim rescue-report --trace SEED [--trace-case sog-uncalibrated]` prints \
 one rescue pulse by pulse, `--first-seed 1000` runs a separate range of scenarios.\n\n\
-- **The fine search with the receiver lowered to the snow (issue 6, this round).** Near \
+- **Dead reckoning in the fine search's stop-and-go (issue 6, fifth round).** The table \
+\"Dead-reckoning consistency\" under the calibrated case compares every displacement the \
+firmware hands the filter with the truth. Before this round, on seeds 1–100, the walk was \
+consistent (mean eᵀC⁻¹e 0.84, RMS error 0.108 m) but the fine search was not: intervals with \
+steps +0.084 m forward on average, RMS 0.300 m against a σ of 0.254 m, 1.8 % beyond the χ² \
+99.9 % point; intervals without a step −0.133 m (a standing walker moving backwards), RMS \
+0.221 m, 4.9 % beyond it. Two causes, both in `motion`: (a) a step is counted whole at its \
+acceleration peak, which comes in the middle of the step (the lowest point of the bob; in \
+human gait the heel strike, with the body half-way between the feet), so while walking the \
+count runs half a step ahead of the body; crediting a pulse `f` of a step since the last \
+peak kept that lead, and a walker who stopped after the pulse had it taken back at the next \
+one — harmless in a long walk (the lead is constant), but every 1–2-step walk of the fine \
+search started and ended with it. A pulse now gets `f − ½` while walking, and nothing once \
+the walker has stopped (no peak pending and the vertical acceleration quiet, |a| < 0.25 m/s² \
+for 0.25 s — a gait swings through ±2.5 m/s² every step; the stop then also counts as \
+standing). (b) The heading of a step was the mean yaw since the previous step, so a turn on \
+the spot before a step (the fine search's turn-round) bent it by up to half the turn — 90° \
+sideways for a turn-around; a stand now restarts that mean. After (same seeds): fine-search \
+intervals with steps +0.059 m, RMS 0.127 m, eᵀC⁻¹e 1.09, none beyond the 99.9 % point; without \
+a step −0.036 m, RMS 0.072 m, 1.10, 1.1 % beyond; the walk 0.119 m, 1.06 (seeds 1000–1099 \
+alike). The probe point, seeds 1–100 / 1000–1099, calibrated: max / median 0.664 / 0.062 → \
+**0.302 / 0.053 m** and 0.651 / 0.071 → **0.404 / 0.062 m**, > 0.20 m in 8 → 2 and 16 → 8 \
+runs; without calibration 2.058 / 0.066 → **0.305 / 0.058 m** and 0.526 / 0.076 → **0.293 / \
+0.057 m**, failures 3 → 1 and 2 → 1. Steps / ideal: calibrated 1.233 → 1.253 and 1.231 → \
+1.215 (paired per seed on 1–100: 23 better, 24 worse, median change 0), uncalibrated 1.296 → \
+1.262 and 1.247 → 1.229; calibrated failures 1 → 3 on seeds 1–100: seeds 19 and 28, weak \
+beacons that took 2.86× and 2.79× before (40 and 34 pulses unheard or without signal, then \
+39 and 85 on the flux line) now cross 3×, seed 80 as before. The IMU case of the accuracy \
+report (the firmware's PDR on hal-sim's other walker model, `rescuer.rs`) moved 0.432 / \
+0.162 / 0.142 → 0.340 / 0.150 / 0.150 m (max / mean / median, seeds 1–100), consistency \
+91.3 → 91.7 %. Tried on the way and not kept: crediting nothing for a stopped walker but \
+keeping `f` (probe error max 0.272 / 0.531 m, uncalibrated 0.555 / 1.439 m — the walk's lead \
+left in); lowering the filter's `init_snr` 10 → 7 / 5 (the flux line shrinks from 23 to 14 \
+pulses but the walk to a wide mean grows by as much: steps / ideal 1.233 → 1.239 / 1.260); \
+a turn's lever-arm noise 0.35 → 0.05 m (the simulated rescuer pivots about the receiver; \
+steps / ideal 1.220 / 1.217, no change in the tail); a stricter probe rule (3σ ≤ 0.15 m: \
+steps / ideal 1.52, median error 0.071 m — standing longer over the mean made the estimate \
+worse with the old dead reckoning) and a looser one (3σ ≤ 0.45 m: 1.200 / 1.182, max 0.491 \
+/ 0.453 m — faster for the same reason; not re-measured with the new dead reckoning, so not \
+kept). Still missed: the 0.05 m median (0.053 / 0.062 m), the 0.20 m max (0.302 / 0.404 m) \
+and 1.10 × ideal (1.25 / 1.22).\n\
+- **The fine search with the receiver lowered to the snow (issue 6, fourth round).** Near \
 the victim the pulse noise is dominated by k_sen·|H| (ICRA eq. 10), so the position error \
 scales with the range: a 1.5 m deep victim is 2.5 m from a receiver held at 1 m and 1.7 m from \
 one at 0.2 m. Localized within 2 m of the estimate, the receiver asks once to \
