@@ -98,6 +98,10 @@ pub struct ClosedLoopConfig {
     /// search (the rescuer then lowers it to [`LOW_HOLD_M`]); without it the whole fine
     /// search is done at the walking height (1 m).
     pub lower: bool,
+    /// Overrides the receiver's probe radius (m; "probe here" needs 3σ_h within it, and
+    /// a levelled-off σ_h at most half of it): the trade-off between steps and probe-point
+    /// error (`rescue-report --probe-tradeoff`). `None`: the firmware's default.
+    pub probe_radius_m: Option<f64>,
 }
 
 /// Where a closed-loop rescue starts.
@@ -138,6 +142,7 @@ impl ClosedLoopConfig {
             policy: Policy::Receiver,
             lift: true,
             lower: true,
+            probe_radius_m: None,
         }
     }
 }
@@ -642,6 +647,11 @@ pub fn run(
     }
     if !cfg.lower {
         app.guidance.lower_within_m = 0.0;
+    }
+    if let Some(r) = cfg.probe_radius_m {
+        // The default pair is 0.3 m and 0.15 m: the plateau's ceiling stays half the radius.
+        app.guidance.probe_radius_m = r as f32;
+        app.guidance.probe_plateau_max_sigma_m = (0.5 * r) as f32;
     }
     let mut rx = Box::new(
         Receiver::new(app).map_err(|e| anyhow::anyhow!("receiver refused its config: {e:?}"))?,
