@@ -123,7 +123,11 @@ pub struct GuidanceConfig {
     pub k_sen: f32,
     /// Horizontal distance (m) below which the fine search (depth display) starts.
     pub fine_search_m: f32,
-    /// Probe radius (m): "probe here" needs `3σ_h` at most this.
+    /// Probe radius (m): "probe here" needs `3σ_h` at most this. 0.45 m (the victim
+    /// within a probing spiral's reach with 99 %): measured in the closed-loop rescues
+    /// (`rescue-report --probe-tradeoff`), radii from 0.15 to 0.6 m leave the probe-point
+    /// error's median at 0.05–0.06 m while the steps grow as the radius shrinks — standing
+    /// longer over the mean does not sharpen the estimate.
     pub probe_radius_m: f32,
     /// Consecutive pulses on which the probe condition must hold.
     pub probe_confirm_pulses: u8,
@@ -197,14 +201,14 @@ impl Default for GuidanceConfig {
             flip_margin_sigma: 2.0,
             k_sen: 0.03,
             fine_search_m: 3.0,
-            probe_radius_m: 0.3,
+            probe_radius_m: 0.45,
             probe_confirm_pulses: 2,
             probe_timeout_pulses: 16,
             bracket_m: 0.5,
             probe_reach_m: 0.5,
             probe_plateau_pulses: 6,
             probe_plateau_ratio: 0.9,
-            probe_plateau_max_sigma_m: 0.15,
+            probe_plateau_max_sigma_m: 0.225,
             receiver_height_m: 1.0,
             sigma_bkg: 2.59e-9,
             flux_memory_m: 3.0,
@@ -948,9 +952,19 @@ mod tests {
         );
     }
 
+    /// The probe thresholds the fine-search tests' σ values are placed against (radius
+    /// 0.3 m, plateau ceiling 0.15 m); the rules' logic does not depend on the values.
+    fn probe_rule_03() -> GuidanceConfig {
+        GuidanceConfig {
+            probe_radius_m: 0.3,
+            probe_plateau_max_sigma_m: 0.15,
+            ..GuidanceConfig::default()
+        }
+    }
+
     #[test]
     fn over_a_wide_mean_the_arrow_brackets_it_then_times_out() {
-        let cfg = GuidanceConfig::default();
+        let cfg = probe_rule_03();
         let mut g = Guidance::new(cfg);
         let h = Vec3::new(1e-4, 0.0, 0.0);
         let _ = g.update(&input(
@@ -1029,7 +1043,7 @@ mod tests {
     fn a_levelled_off_sigma_probes_before_the_timeout() {
         let cfg = GuidanceConfig {
             probe_timeout_pulses: 30,
-            ..GuidanceConfig::default()
+            ..probe_rule_03()
         };
         let n = usize::from(cfg.probe_plateau_pulses);
         // σ stuck at 0.12 m (3σ > the 0.3 m probe radius, below the plateau bound):
@@ -1062,7 +1076,7 @@ mod tests {
 
     #[test]
     fn one_jump_of_the_estimate_does_not_restart_the_timeout() {
-        let cfg = GuidanceConfig::default();
+        let cfg = probe_rule_03();
         let timeout = usize::from(cfg.probe_timeout_pulses);
         // A wide belief (no plateau probe) 0.2 m away, except on the pulses in `jumps`,
         // where it is 3 m away (beyond the bracketing span): the pulse of the probe.

@@ -473,11 +473,12 @@ fn probe_tradeoff(args: &Args, radii: &[f64]) -> anyhow::Result<String> {
     let mut s = format!(
         "### Steps against probe-point error: the probe radius (calibrated)\n\n\
 \"Probe here\" needs 3σ_h within the probe radius on {} pulses (or a levelled-off σ_h of at \
-most half of it, or the 16-pulse timeout over the mean); the firmware's radius is 0.3 m. The \
+most half of it, or the 16-pulse timeout over the mean); the firmware's radius is {} m. The \
 same scenarios with other radii (`--probe-tradeoff {}`):\n\n\
 | probe radius (m) | steps / ideal median | mean | probe-point error median (m) | max | > 0.20 m | failures |\n\
 |---|---|---|---|---|---|---|\n",
         GuidanceConfig::default().probe_confirm_pulses,
+        GuidanceConfig::default().probe_radius_m,
         radii
             .iter()
             .map(|r| format!("{r}"))
@@ -1083,11 +1084,15 @@ kept). With the new dead reckoning the probe radius was measured again (table \
 \"Steps against probe-point error\" above, both seed ranges): from 0.15 to 0.6 m the median \
 probe-point error stays within 0.049–0.063 m while steps / ideal go from 1.48 to 1.18 — the \
 error is set by what the fine search has measured when it starts, not by standing longer \
-over the mean, so neither target is bought with the other; a 0.45 m radius (99 % inside a \
-0.45 m circle, within a probing spiral) would save ≈ 4 % of the steps at an unchanged median, \
-not adopted here (the uncalibrated and multi-victim cases were not re-measured with it). \
-Still missed: the 0.05 m median (0.053 / 0.062 m), the 0.20 m max (0.302 / 0.404 m) and \
-1.10 × ideal (1.25 / 1.22; no probe radius reaches it: 1.18 at 0.6 m).\n\
+over the mean, so neither target is bought with the other. The radius is now 0.45 m (was \
+0.3 m; 99 % inside a 0.45 m circle, within a probing spiral's reach; the plateau's ceiling \
+half of it, 0.225 m): seeds 1–100 / 1000–1099, calibrated steps / ideal 1.253 → 1.199 and \
+1.215 → 1.182, probe-point error median 0.053 → 0.054 and 0.062 → 0.062 m, max 0.302 → \
+0.316 and 0.404 → 0.466 m, failures 3 → 2 and 1 → 1; uncalibrated 1.262 → 1.209 and 1.229 → \
+1.179, median 0.058 → 0.055 and 0.057 → 0.057 m, max 0.305 → 0.251 and 0.293 → 0.303 m; \
+`multi-report --tries 50` 603 → 604 of 604 victims found, per-victim median 0.050 → 0.051 m. \
+Still missed: the 0.05 m median (0.054 / 0.062 m), the 0.20 m max (0.316 / 0.466 m) and \
+1.10 × ideal (1.20 / 1.18; no probe radius reaches it: 1.18 at 0.6 m).\n\
 - **The fine search with the receiver lowered to the snow (issue 6, fourth round).** Near \
 the victim the pulse noise is dominated by k_sen·|H| (ICRA eq. 10), so the position error \
 scales with the range: a 1.5 m deep victim is 2.5 m from a receiver held at 1 m and 1.7 m from \
