@@ -581,6 +581,12 @@ impl Receiver {
             return Ok(self.display_model());
         };
         let fresh = !self.bank.get(slot).is_some_and(|v| v.has_src(src));
+        // The display said "no signal" before this pulse (as in `display_model`).
+        let signal_lost = !fresh
+            && self.bank.get(slot).is_some_and(|v| {
+                let heard = v.last_t().max(self.last_withheld_t.unwrap_or(f32::MIN));
+                t - heard > self.cfg.signal_timeout_s
+            });
         // Work on a copy of the motion state: the displacement is only consumed when the
         // estimator accepts the pulse.
         let mut motion = self.motion.clone();
@@ -654,6 +660,7 @@ impl Receiver {
                 yaw: rpy.z,
                 estimate: self.bank.filter(slot).estimate(),
                 reinitialized,
+                signal_lost,
                 height_m: Some(self.height_m()),
             });
             // Several victims: no lowering. Each mixture's initialization prior places its

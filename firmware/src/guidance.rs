@@ -119,6 +119,15 @@ pub struct GuidanceConfig {
     /// Significance of the decrease that flips the flux-line direction, in σ of one |H|
     /// reading (`√(σ_bkg² + (k_sen |H|)²)`, ICRA 2006 eq. 10).
     pub flip_margin_sigma: f32,
+    /// Flux-line mode: a signal lost ([`GuidanceInput::signal_lost`]) after a smoothed
+    /// |H| below this many σ_bkg was lost by walking out of range, and the flux-line
+    /// direction is reversed. At the edge of reception the receiver only hears the pulses
+    /// above its threshold, so a falling |H| shows as missing pulses, not as smaller
+    /// readings, and the 5 m rule never fires: the rescuer who turned back on "no
+    /// signal" was sent out again on the old direction when the pulses came back. From
+    /// a stronger signal the loss is not the walk (|H| ∝ r⁻³ does not fall to the
+    /// threshold over a few metres): the transmitter paused, or pulses were withheld.
+    pub edge_h_sigma: f32,
     /// Sensor noise proportional to |H| (ICRA 2006 eq. 10), for the flip significance.
     pub k_sen: f32,
     /// Horizontal distance (m) below which the fine search (depth display) starts.
@@ -199,6 +208,7 @@ impl Default for GuidanceConfig {
             concentrated_ratio: 1.0,
             flip_after_m: 5.0,
             flip_margin_sigma: 2.0,
+            edge_h_sigma: 10.0,
             k_sen: 0.03,
             fine_search_m: 3.0,
             probe_radius_m: 0.45,
@@ -239,6 +249,9 @@ pub struct GuidanceInput {
     pub estimate: Option<VictimEstimate>,
     /// The estimator rebuilt its mixture on this pulse: forget the latched target.
     pub reinitialized: bool,
+    /// No pulse came for longer than the signal timeout before this one (the display
+    /// said "no signal").
+    pub signal_lost: bool,
     /// The receiver's height above the snow (m) as tracked from the measured vertical
     /// moves; `None`: not tracked (the configured
     /// [`receiver_height_m`](GuidanceConfig::receiver_height_m), no height prompts).
@@ -379,6 +392,9 @@ impl Guidance {
             self.lift_pulses = 0;
             self.bracket_dir = None;
         }
+        if input.signal_lost && !self.localized {
+            self.turn_back_if_walked_out();
+        }
         // Classical flux-line bookkeeping runs in every mode, so that a fallback from
         // the mean to the flux line starts with a sensible direction.
         let flux = h_g.and_then(|h| self.flux_line(&h, walked, yaw));
@@ -410,6 +426,24 @@ impl Guidance {
             }
         }
         out
+    }
+
+    /// The signal was lost on the flux line: from a weak signal, the rescuer walked out of
+    /// range (the classical rule "if the signal decreases, turn around", ICRA §II-A, with
+    /// the loss as the decrease; see [`GuidanceConfig::edge_h_sigma`]): reverse the
+    /// direction and restart the |H| comparison from the next pulses.
+    fn turn_back_if_walked_out(&mut self) {
+        let edge = self.cfg.edge_h_sigma * self.cfg.sigma_bkg;
+        if self.smooth_h <= 0.0 || self.smooth_h >= edge {
+            return;
+        }
+        if let Some(d) = self.flux_dir.as_mut() {
+            d[0] = -d[0];
+            d[1] = -d[1];
+        }
+        self.smooth_h = 0.0;
+        self.best_h = 0.0;
+        self.walked_since_best = 0.0;
     }
 
     /// Flux-line direction in `G` (rad) for the field `h` (ICRA §II-A, IROS §III-C).
@@ -760,6 +794,7 @@ mod tests {
             yaw,
             estimate: e,
             reinitialized: false,
+            signal_lost: false,
             height_m: None,
         }
     }
@@ -814,6 +849,50 @@ mod tests {
     }
 
     #[test]
+    fn a_weak_signal_lost_on_the_flux_line_turns_the_direction_back() {
+        let cfg = GuidanceConfig::default();
+        // Walking north along a flux line at the edge of reception (|H| ≈ 5 σ_bkg):
+        // the pulses stop, the rescuer turns back on "no signal", the pulses return.
+        let weak = 5.0 * cfg.sigma_bkg;
+        let walk_out = |g: &mut Guidance| {
+            for _ in 0..4 {
+                let o = g.update(&input(Vec3::new(weak, 0.0, 0.0), 1.0, 0.0, None));
+                assert!(o.bearing.is_some_and(|b| b.abs() < 1e-5));
+            }
+        };
+        let back = |lost: bool, h: f32| GuidanceInput {
+            signal_lost: lost,
+            ..input(Vec3::new(h, 0.0, 0.0), 4.0, PI, None)
+        };
+        let mut g = Guidance::new(cfg);
+        walk_out(&mut g);
+        let o = g.update(&back(true, weak));
+        assert!(
+            o.bearing.is_some_and(|b| (b.abs() - PI).abs() < 1e-5),
+            "sent back south: {:?}",
+            o.bearing
+        );
+        // Without the loss the old direction holds (the 5 m rule has not fired).
+        let mut g = Guidance::new(cfg);
+        walk_out(&mut g);
+        assert!(
+            g.update(&back(false, weak))
+                .bearing
+                .is_some_and(|b| b.abs() < 1e-5)
+        );
+        // A strong signal is not lost by walking a few metres: the direction holds.
+        let mut g = Guidance::new(cfg);
+        for _ in 0..4 {
+            let _ = g.update(&input(Vec3::new(1e-6, 0.0, 0.0), 1.0, 0.0, None));
+        }
+        assert!(
+            g.update(&back(true, 1e-6))
+                .bearing
+                .is_some_and(|b| b.abs() < 1e-5)
+        );
+    }
+
+    #[test]
     fn vertical_field_keeps_no_direction_and_no_signal_without_a_pulse() {
         let mut g = Guidance::new(GuidanceConfig::default());
         let o = g.update(&input(Vec3::new(0.0, 0.0, 1e-6), 0.0, 0.0, None));
@@ -824,6 +903,7 @@ mod tests {
             yaw: 0.0,
             estimate: None,
             reinitialized: false,
+            signal_lost: false,
             height_m: None,
         });
         assert_eq!(o, GuidanceOutput::default());
