@@ -143,7 +143,6 @@ impl AppConfig {
         };
         let guidance = GuidanceConfig {
             receiver_height_m: sog.receiver_height,
-            min_range_m: sog.receiver_height + sog.depth_min,
             ..GuidanceConfig::default()
         };
         Self {
@@ -615,6 +614,10 @@ impl Receiver {
         let (rpy, cov) = motion.attitude();
         let attitude = Attitude { rpy, cov };
         let pulse = estimate::Pulse { h: *h_body, t };
+        // A mixture (re)initialized on this pulse puts the victim below the receiver's
+        // height now, lowered or not (with several victims, mixtures start all along the
+        // search, also while the receiver is low).
+        self.bank.set_receiver_height(self.height_m());
         let stepped = self.bank.step(slot, src, &cut, &attitude, &pulse);
         let (report, own) = match stepped {
             Ok(r) => r,
@@ -663,14 +666,6 @@ impl Receiver {
                 signal_lost,
                 height_m: Some(self.height_m()),
             });
-            // Several victims: no lowering. Each mixture's initialization prior places its
-            // victim below the walking height (`SogConfig::receiver_height`), and with
-            // several transmitters mixtures are (re)initialized all along the search —
-            // while the receiver is low their depth prior would be off by the lowering
-            // (measured: victims found 360 → 356 of 360 on multi-report seeds 101–130).
-            if self.last.height_prompt == HeightPrompt::Lower && self.bank.len() > 1 {
-                self.last.height_prompt = HeightPrompt::None;
-            }
             // Lifting, lowering or raising the receiver: stand, steps not counted.
             self.motion
                 .set_lift_mode(self.last.lift || self.last.height_prompt != HeightPrompt::None);

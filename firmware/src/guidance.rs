@@ -184,15 +184,6 @@ pub struct GuidanceConfig {
     pub lower_within_m: f32,
     /// A receiver at most this high above the snow (m) counts as lowered.
     pub low_height_m: f32,
-    /// Height above the snow (m) a receiver lowered "to the snow" is held at (nominal).
-    pub lowered_height_m: f32,
-    /// Shallowest range below the receiver (m) the estimator models: its initialization
-    /// prior places the victim `receiver_height + depth_min` below the receiver at least.
-    /// The lowering is asked for only when the estimated victim stays that far below the
-    /// lowered receiver: a shallower one would leave the filter's model (and at such a
-    /// short range the field's steepness makes the linearized update fragile), while its
-    /// range from the walking height is already short.
-    pub min_range_m: f32,
     /// A lowered receiver is asked to be raised again ([`HeightPrompt::Raise`]) when the
     /// mean is farther than this (m), e.g. the next victim after a mark.
     pub raise_beyond_m: f32,
@@ -227,8 +218,6 @@ impl Default for GuidanceConfig {
             lift_max_pulses: 6,
             lower_within_m: 2.0,
             low_height_m: 0.5,
-            lowered_height_m: 0.2,
-            min_range_m: 1.0,
             raise_beyond_m: 6.0,
             height_prompt_pulses: 4,
         }
@@ -629,8 +618,7 @@ impl Guidance {
         };
         let dist_h = libm::sqrtf(e.p.x * e.p.x + e.p.y * e.p.y);
         let want = if h > c.low_height_m {
-            let deep_enough = -e.p.z - h + c.lowered_height_m >= c.min_range_m;
-            if self.localized && !self.lower_asked && dist_h <= c.lower_within_m && deep_enough {
+            if self.localized && !self.lower_asked && dist_h <= c.lower_within_m {
                 HeightPrompt::Lower
             } else {
                 HeightPrompt::None
@@ -1279,13 +1267,13 @@ mod tests {
     }
 
     #[test]
-    fn a_shallow_victim_or_an_untracked_height_gets_no_lowering() {
+    fn a_shallow_victim_is_lowered_to_but_an_untracked_height_is_not() {
         let cfg = GuidanceConfig::default();
-        // 0.5 m deep: lowered to 0.2 m it would be 0.7 m below the receiver, shallower
-        // than the estimator's `min_range_m` (1 m).
+        // 0.5 m deep: lowered to 0.2 m it is 0.7 m below the receiver, and the estimator's
+        // initialization prior follows the tracked height (`set_receiver_height`).
         let mut g = localized_search(cfg);
         let o = g.update(&at_height(est(Vec3::new(1.0, 0.0, -1.5), 0.3), Some(1.0)));
-        assert_eq!(o.height_prompt, HeightPrompt::None);
+        assert_eq!(o.height_prompt, HeightPrompt::Lower);
         // Deep, but the caller tracks no height.
         let mut g = localized_search(cfg);
         let o = g.update(&at_height(est(Vec3::new(1.0, 0.0, -3.0), 0.3), None));

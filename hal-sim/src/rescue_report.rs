@@ -837,9 +837,8 @@ type Metric = fn(&Rescue) -> Option<f64>;
 /// the walking height.
 fn lower_gain(all: &[Rescue]) -> String {
     let head = "### Gain of the lowering to the snow (issue 6)\n\n\
-Localized within 2 m of the estimate, with the estimated victim at least the estimator's \
-shallowest modelled range (1.3 m) below a receiver lowered to 0.2 m, the receiver shows \
-\"LOWER TO SNOW\" (once): the rescuer stops, pauses 0.5 s and lowers it to 0.2 m above the \
+Localized within 2 m of the estimate, the receiver shows \"LOWER TO SNOW\" (once, whatever \
+the estimated depth: the filter's initialization prior follows the tracked height): the rescuer stops, pauses 0.5 s and lowers it to 0.2 m above the \
 snow in a 1 s minimum-jerk move, then goes on step by step bent over. The accelerometer \
 measures the 0.8 m as an absolute displacement (the filter's unscaled part) and the receiver \
 tracks its height from it (depth shown = −p_z − height). Errors over the rescues that \

@@ -98,6 +98,17 @@ impl<const N: usize> SogFilter<N> {
         &self.config
     }
 
+    /// The receiver's height above the snow now (m, as tracked from its measured
+    /// vertical moves): the depth prior of the next (re)initialization places the victim
+    /// `height + depth_min … height + depth_max` below the receiver (ICRA eq. 16's grid),
+    /// so a mixture started with the receiver lowered to the snow is not a metre too
+    /// deep. A non-finite or negative height is ignored.
+    pub fn set_receiver_height(&mut self, height_m: f32) {
+        if height_m.is_finite() && height_m >= 0.0 {
+            self.config.receiver_height = height_m;
+        }
+    }
+
     /// Number of Gaussians currently in the mixture.
     pub fn len(&self) -> usize {
         self.comps.len()
@@ -870,6 +881,48 @@ mod tests {
         let r = f.step(&motion, &att, &Pulse { h, t: 1.0 }).unwrap();
         assert_eq!(r.outcome, StepOutcome::Updated);
         (f, att)
+    }
+
+    #[test]
+    fn the_initialization_prior_follows_the_receiver_height() {
+        // One pulse from 4 m away; every component's depth below the receiver lies in the
+        // prior's band `height + [depth_min, depth_max]` (± its σ), at the walking height
+        // and with the receiver lowered to the snow.
+        let att = Attitude::with_sigmas(Rpy::zeros(), 0.01, 0.05);
+        let h =
+            crate::dipole::field(&Vec3::new(3.0, 1.0, -2.0), &Vec3::new(0.01, 0.0, 0.005)).unwrap();
+        let depths = |height: Option<f32>| {
+            let mut f = DefaultSog::new(SogConfig::default()).unwrap();
+            if let Some(h) = height {
+                f.set_receiver_height(h);
+            }
+            let r = f.step(&Displacement::zero(), &att, &Pulse { h, t: 0.0 });
+            assert_eq!(r.unwrap().outcome, StepOutcome::Initialized);
+            let c = f.config();
+            let band = (
+                c.receiver_height + c.depth_min,
+                c.receiver_height + c.depth_max,
+            );
+            let zs: std::vec::Vec<f32> = f.components().map(|(_, p, _)| -p.z).collect();
+            (band, zs)
+        };
+        for (height, band) in [(None, (1.0, 6.0)), (Some(0.2), (0.2, 5.2))] {
+            let ((lo, hi), zs) = depths(height);
+            assert!(
+                (lo - band.0).abs() < 1e-5 && (hi - band.1).abs() < 1e-5,
+                "{lo} {hi}"
+            );
+            assert!(!zs.is_empty());
+            assert!(zs.iter().all(|z| *z > lo && *z < hi), "{height:?}: {zs:?}");
+        }
+        // Nonsense heights are ignored.
+        let mut f = DefaultSog::new(SogConfig::default()).unwrap();
+        f.set_receiver_height(f32::NAN);
+        f.set_receiver_height(-1.0);
+        assert_eq!(
+            f.config().receiver_height,
+            SogConfig::default().receiver_height
+        );
     }
 
     #[test]
