@@ -119,6 +119,15 @@ pub struct GuidanceConfig {
     /// Significance of the decrease that flips the flux-line direction, in σ of one |H|
     /// reading (`√(σ_bkg² + (k_sen |H|)²)`, ICRA 2006 eq. 10).
     pub flip_margin_sigma: f32,
+    /// Flux-line mode: a signal lost ([`GuidanceInput::signal_lost`]) after a smoothed
+    /// |H| below this many σ_bkg was lost by walking out of range, and the flux-line
+    /// direction is reversed. At the edge of reception the receiver only hears the pulses
+    /// above its threshold, so a falling |H| shows as missing pulses, not as smaller
+    /// readings, and the 5 m rule never fires: the rescuer who turned back on "no
+    /// signal" was sent out again on the old direction when the pulses came back. From
+    /// a stronger signal the loss is not the walk (|H| ∝ r⁻³ does not fall to the
+    /// threshold over a few metres): the transmitter paused, or pulses were withheld.
+    pub edge_h_sigma: f32,
     /// Sensor noise proportional to |H| (ICRA 2006 eq. 10), for the flip significance.
     pub k_sen: f32,
     /// Horizontal distance (m) below which the fine search (depth display) starts.
@@ -175,15 +184,6 @@ pub struct GuidanceConfig {
     pub lower_within_m: f32,
     /// A receiver at most this high above the snow (m) counts as lowered.
     pub low_height_m: f32,
-    /// Height above the snow (m) a receiver lowered "to the snow" is held at (nominal).
-    pub lowered_height_m: f32,
-    /// Shallowest range below the receiver (m) the estimator models: its initialization
-    /// prior places the victim `receiver_height + depth_min` below the receiver at least.
-    /// The lowering is asked for only when the estimated victim stays that far below the
-    /// lowered receiver: a shallower one would leave the filter's model (and at such a
-    /// short range the field's steepness makes the linearized update fragile), while its
-    /// range from the walking height is already short.
-    pub min_range_m: f32,
     /// A lowered receiver is asked to be raised again ([`HeightPrompt::Raise`]) when the
     /// mean is farther than this (m), e.g. the next victim after a mark.
     pub raise_beyond_m: f32,
@@ -199,6 +199,7 @@ impl Default for GuidanceConfig {
             concentrated_ratio: 1.0,
             flip_after_m: 5.0,
             flip_margin_sigma: 2.0,
+            edge_h_sigma: 10.0,
             k_sen: 0.03,
             fine_search_m: 3.0,
             probe_radius_m: 0.45,
@@ -217,8 +218,6 @@ impl Default for GuidanceConfig {
             lift_max_pulses: 6,
             lower_within_m: 2.0,
             low_height_m: 0.5,
-            lowered_height_m: 0.2,
-            min_range_m: 1.0,
             raise_beyond_m: 6.0,
             height_prompt_pulses: 4,
         }
@@ -239,6 +238,9 @@ pub struct GuidanceInput {
     pub estimate: Option<VictimEstimate>,
     /// The estimator rebuilt its mixture on this pulse: forget the latched target.
     pub reinitialized: bool,
+    /// No pulse came for longer than the signal timeout before this one (the display
+    /// said "no signal").
+    pub signal_lost: bool,
     /// The receiver's height above the snow (m) as tracked from the measured vertical
     /// moves; `None`: not tracked (the configured
     /// [`receiver_height_m`](GuidanceConfig::receiver_height_m), no height prompts).
@@ -379,6 +381,9 @@ impl Guidance {
             self.lift_pulses = 0;
             self.bracket_dir = None;
         }
+        if input.signal_lost && !self.localized {
+            self.turn_back_if_walked_out();
+        }
         // Classical flux-line bookkeeping runs in every mode, so that a fallback from
         // the mean to the flux line starts with a sensible direction.
         let flux = h_g.and_then(|h| self.flux_line(&h, walked, yaw));
@@ -410,6 +415,24 @@ impl Guidance {
             }
         }
         out
+    }
+
+    /// The signal was lost on the flux line: from a weak signal, the rescuer walked out of
+    /// range (the classical rule "if the signal decreases, turn around", ICRA §II-A, with
+    /// the loss as the decrease; see [`GuidanceConfig::edge_h_sigma`]): reverse the
+    /// direction and restart the |H| comparison from the next pulses.
+    fn turn_back_if_walked_out(&mut self) {
+        let edge = self.cfg.edge_h_sigma * self.cfg.sigma_bkg;
+        if self.smooth_h <= 0.0 || self.smooth_h >= edge {
+            return;
+        }
+        if let Some(d) = self.flux_dir.as_mut() {
+            d[0] = -d[0];
+            d[1] = -d[1];
+        }
+        self.smooth_h = 0.0;
+        self.best_h = 0.0;
+        self.walked_since_best = 0.0;
     }
 
     /// Flux-line direction in `G` (rad) for the field `h` (ICRA §II-A, IROS §III-C).
@@ -595,8 +618,7 @@ impl Guidance {
         };
         let dist_h = libm::sqrtf(e.p.x * e.p.x + e.p.y * e.p.y);
         let want = if h > c.low_height_m {
-            let deep_enough = -e.p.z - h + c.lowered_height_m >= c.min_range_m;
-            if self.localized && !self.lower_asked && dist_h <= c.lower_within_m && deep_enough {
+            if self.localized && !self.lower_asked && dist_h <= c.lower_within_m {
                 HeightPrompt::Lower
             } else {
                 HeightPrompt::None
@@ -760,6 +782,7 @@ mod tests {
             yaw,
             estimate: e,
             reinitialized: false,
+            signal_lost: false,
             height_m: None,
         }
     }
@@ -814,6 +837,50 @@ mod tests {
     }
 
     #[test]
+    fn a_weak_signal_lost_on_the_flux_line_turns_the_direction_back() {
+        let cfg = GuidanceConfig::default();
+        // Walking north along a flux line at the edge of reception (|H| ≈ 5 σ_bkg):
+        // the pulses stop, the rescuer turns back on "no signal", the pulses return.
+        let weak = 5.0 * cfg.sigma_bkg;
+        let walk_out = |g: &mut Guidance| {
+            for _ in 0..4 {
+                let o = g.update(&input(Vec3::new(weak, 0.0, 0.0), 1.0, 0.0, None));
+                assert!(o.bearing.is_some_and(|b| b.abs() < 1e-5));
+            }
+        };
+        let back = |lost: bool, h: f32| GuidanceInput {
+            signal_lost: lost,
+            ..input(Vec3::new(h, 0.0, 0.0), 4.0, PI, None)
+        };
+        let mut g = Guidance::new(cfg);
+        walk_out(&mut g);
+        let o = g.update(&back(true, weak));
+        assert!(
+            o.bearing.is_some_and(|b| (b.abs() - PI).abs() < 1e-5),
+            "sent back south: {:?}",
+            o.bearing
+        );
+        // Without the loss the old direction holds (the 5 m rule has not fired).
+        let mut g = Guidance::new(cfg);
+        walk_out(&mut g);
+        assert!(
+            g.update(&back(false, weak))
+                .bearing
+                .is_some_and(|b| b.abs() < 1e-5)
+        );
+        // A strong signal is not lost by walking a few metres: the direction holds.
+        let mut g = Guidance::new(cfg);
+        for _ in 0..4 {
+            let _ = g.update(&input(Vec3::new(1e-6, 0.0, 0.0), 1.0, 0.0, None));
+        }
+        assert!(
+            g.update(&back(true, 1e-6))
+                .bearing
+                .is_some_and(|b| b.abs() < 1e-5)
+        );
+    }
+
+    #[test]
     fn vertical_field_keeps_no_direction_and_no_signal_without_a_pulse() {
         let mut g = Guidance::new(GuidanceConfig::default());
         let o = g.update(&input(Vec3::new(0.0, 0.0, 1e-6), 0.0, 0.0, None));
@@ -824,6 +891,7 @@ mod tests {
             yaw: 0.0,
             estimate: None,
             reinitialized: false,
+            signal_lost: false,
             height_m: None,
         });
         assert_eq!(o, GuidanceOutput::default());
@@ -1199,13 +1267,13 @@ mod tests {
     }
 
     #[test]
-    fn a_shallow_victim_or_an_untracked_height_gets_no_lowering() {
+    fn a_shallow_victim_is_lowered_to_but_an_untracked_height_is_not() {
         let cfg = GuidanceConfig::default();
-        // 0.5 m deep: lowered to 0.2 m it would be 0.7 m below the receiver, shallower
-        // than the estimator's `min_range_m` (1 m).
+        // 0.5 m deep: lowered to 0.2 m it is 0.7 m below the receiver, and the estimator's
+        // initialization prior follows the tracked height (`set_receiver_height`).
         let mut g = localized_search(cfg);
         let o = g.update(&at_height(est(Vec3::new(1.0, 0.0, -1.5), 0.3), Some(1.0)));
-        assert_eq!(o.height_prompt, HeightPrompt::None);
+        assert_eq!(o.height_prompt, HeightPrompt::Lower);
         // Deep, but the caller tracks no height.
         let mut g = localized_search(cfg);
         let o = g.update(&at_height(est(Vec3::new(1.0, 0.0, -3.0), 0.3), None));

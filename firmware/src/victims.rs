@@ -324,6 +324,14 @@ impl VictimBank {
         }
     }
 
+    /// The receiver's tracked height above the snow (m) for every filter's next
+    /// initialization (see [`VictimSog::set_receiver_height`]).
+    pub fn set_receiver_height(&mut self, height_m: f32) {
+        for v in self.slots.iter_mut() {
+            v.filter.set_receiver_height(height_m);
+        }
+    }
+
     /// Empties every slot.
     pub fn reset(&mut self) {
         for v in self.slots.iter_mut() {

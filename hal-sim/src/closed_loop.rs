@@ -625,7 +625,6 @@ pub(crate) fn app_config(receiver: &ReceiverConfig, step_length_m: Option<f64>) 
     );
     app.sog = sog_config(receiver, app.sog);
     app.guidance.receiver_height_m = app.sog.receiver_height;
-    app.guidance.min_range_m = app.sog.receiver_height + app.sog.depth_min;
     app.guidance.sigma_bkg = app.sog.sigma_bkg;
     app
 }

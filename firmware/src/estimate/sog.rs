@@ -98,6 +98,17 @@ impl<const N: usize> SogFilter<N> {
         &self.config
     }
 
+    /// The receiver's height above the snow now (m, as tracked from its measured
+    /// vertical moves): the depth prior of the next (re)initialization places the victim
+    /// `height + depth_min … height + depth_max` below the receiver (ICRA eq. 16's grid),
+    /// so a mixture started with the receiver lowered to the snow is not a metre too
+    /// deep. A non-finite or negative height is ignored.
+    pub fn set_receiver_height(&mut self, height_m: f32) {
+        if height_m.is_finite() && height_m >= 0.0 {
+            self.config.receiver_height = height_m;
+        }
+    }
+
     /// Number of Gaussians currently in the mixture.
     pub fn len(&self) -> usize {
         self.comps.len()
@@ -463,9 +474,12 @@ impl<const N: usize> SogFilter<N> {
         } else {
             self.config.scale_divergence_d2
         };
+        let near2 =
+            self.config.scale_divergence_min_range_m * self.config.scale_divergence_min_range_m;
         let scale_d2 = |x: &super::model::StateVec, p: &super::model::StateMat| {
             let v = s0 - p[(I_S, I_S)];
-            if scale_gate <= 0.0 || v <= 0.0 {
+            let range2 = x[I_P] * x[I_P] + x[I_P + 1] * x[I_P + 1];
+            if scale_gate <= 0.0 || v <= 0.0 || range2 < near2 {
                 0.0
             } else {
                 (x[I_S] - 1.0) * (x[I_S] - 1.0) / v
@@ -873,6 +887,48 @@ mod tests {
     }
 
     #[test]
+    fn the_initialization_prior_follows_the_receiver_height() {
+        // One pulse from 4 m away; every component's depth below the receiver lies in the
+        // prior's band `height + [depth_min, depth_max]` (± its σ), at the walking height
+        // and with the receiver lowered to the snow.
+        let att = Attitude::with_sigmas(Rpy::zeros(), 0.01, 0.05);
+        let h =
+            crate::dipole::field(&Vec3::new(3.0, 1.0, -2.0), &Vec3::new(0.01, 0.0, 0.005)).unwrap();
+        let depths = |height: Option<f32>| {
+            let mut f = DefaultSog::new(SogConfig::default()).unwrap();
+            if let Some(h) = height {
+                f.set_receiver_height(h);
+            }
+            let r = f.step(&Displacement::zero(), &att, &Pulse { h, t: 0.0 });
+            assert_eq!(r.unwrap().outcome, StepOutcome::Initialized);
+            let c = f.config();
+            let band = (
+                c.receiver_height + c.depth_min,
+                c.receiver_height + c.depth_max,
+            );
+            let zs: std::vec::Vec<f32> = f.components().map(|(_, p, _)| -p.z).collect();
+            (band, zs)
+        };
+        for (height, band) in [(None, (1.0, 6.0)), (Some(0.2), (0.2, 5.2))] {
+            let ((lo, hi), zs) = depths(height);
+            assert!(
+                (lo - band.0).abs() < 1e-5 && (hi - band.1).abs() < 1e-5,
+                "{lo} {hi}"
+            );
+            assert!(!zs.is_empty());
+            assert!(zs.iter().all(|z| *z > lo && *z < hi), "{height:?}: {zs:?}");
+        }
+        // Nonsense heights are ignored.
+        let mut f = DefaultSog::new(SogConfig::default()).unwrap();
+        f.set_receiver_height(f32::NAN);
+        f.set_receiver_height(-1.0);
+        assert_eq!(
+            f.config().receiver_height,
+            SogConfig::default().receiver_height
+        );
+    }
+
+    #[test]
     fn bad_inputs_are_rejected_and_leave_the_state_unchanged() {
         let (mut f, att) = initialized_filter();
         let before = f.clone();
@@ -1034,11 +1090,53 @@ mod tests {
                 divergence_pulses: 0,
                 ..SogConfig::default()
             },
+            SogConfig {
+                scale_divergence_min_range_m: -1.0,
+                ..SogConfig::default()
+            },
         ];
         for c in bad {
             assert_eq!(DefaultSog::new(c).err(), Some(EstimateError::InvalidConfig));
         }
         assert!(SogFilter::<4>::new(SogConfig::default()).is_err());
+    }
+
+    #[test]
+    fn an_off_scale_rebuilds_the_mixture_far_from_the_victim_but_not_near_it() {
+        // One Gaussian on the true transmitter (its pulses consistent) whose walk-long
+        // scale is 0.9 ± 0.001: 5σ of the calibration prior (0.02) off. Far away that
+        // rebuilds the mixture after `divergence_pulses` pulses; within
+        // `scale_divergence_min_range_m` it does not.
+        let m = Vec3::new(0.01, 0.0, 0.005);
+        let run = |p_t: Vec3| {
+            let (mut f, att) = initialized_filter();
+            let mut mean = nalgebra::SVector::<f32, 10>::zeros();
+            mean.fixed_rows_mut::<3>(0).copy_from(&att.rpy);
+            mean.fixed_rows_mut::<3>(3).copy_from(&p_t);
+            mean.fixed_rows_mut::<3>(6).copy_from(&m);
+            mean[9] = 0.9;
+            let mut d = nalgebra::SVector::<f32, 10>::repeat(1e-4);
+            d.fixed_rows_mut::<3>(3).fill(1e-3);
+            d.fixed_rows_mut::<3>(6).fill(1e-8);
+            d[9] = 1e-6;
+            f.reset_to_single(&mean, &nalgebra::SMatrix::from_diagonal(&d))
+                .unwrap();
+            let still = Displacement::with_sigmas(Vec3::zeros(), Rpy::zeros(), 0.01, 0.001);
+            let r_gk = crate::frame::rotation_from_rpy(&att.rpy);
+            let mut outcomes = std::vec::Vec::new();
+            for k in 0..8 {
+                // The pulse in the receiver frame: the field at −p_T, rotated into R_k.
+                let h = r_gk.transpose() * crate::dipole::field(&(-p_t), &m).unwrap();
+                let t = 2.0 + k as f32;
+                outcomes.push(f.step(&still, &att, &Pulse { h, t }).unwrap().outcome);
+            }
+            outcomes
+        };
+        let far = run(Vec3::new(20.0, -3.0, -2.0));
+        let n = usize::from(SogConfig::default().divergence_pulses);
+        assert_eq!(far[n - 1], StepOutcome::Reinitialized, "{far:?}");
+        let near = run(Vec3::new(2.5, -1.0, -1.5));
+        assert!(near.iter().all(|o| *o == StepOutcome::Updated), "{near:?}");
     }
 
     #[test]
