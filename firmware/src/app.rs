@@ -582,10 +582,10 @@ impl Receiver {
         let fresh = !self.bank.get(slot).is_some_and(|v| v.has_src(src));
         // The display said "no signal" before this pulse (as in `display_model`).
         let signal_lost = !fresh
-            && self.bank.get(slot).is_some_and(|v| {
-                let heard = v.last_t().max(self.last_withheld_t.unwrap_or(f32::MIN));
-                t - heard > self.cfg.signal_timeout_s
-            });
+            && self
+                .bank
+                .get(slot)
+                .is_some_and(|v| t - self.last_heard_t(v) > self.cfg.signal_timeout_s);
         // Work on a copy of the motion state: the displacement is only consumed when the
         // estimator accepts the pulse.
         let mut motion = self.motion.clone();
@@ -728,6 +728,12 @@ impl Receiver {
         self.display_model()
     }
 
+    /// When victim `v` was last heard (s): its own last pulse, or a later withheld
+    /// (overlapping) pulse, which may have been its own.
+    fn last_heard_t(&self, v: &Victim) -> f32 {
+        v.last_t().max(self.last_withheld_t.unwrap_or(f32::MIN))
+    }
+
     /// The display now: the last pulse's guidance, with the arrow turned by the device's
     /// current heading (the compass keeps the arrow right between pulses), and "no
     /// signal" when no pulse came for [`AppConfig::signal_timeout_s`].
@@ -746,7 +752,7 @@ impl Receiver {
         let target_t = self
             .target
             .and_then(|i| self.bank.get(i))
-            .map(|v| v.last_t().max(self.last_withheld_t.unwrap_or(f32::MIN)));
+            .map(|v| self.last_heard_t(v));
         let timed_out = target_t.is_none_or(|t| self.t_now - t > self.cfg.signal_timeout_s);
         let (status, arrow_deg) = if timed_out && g.status != Status::Probe {
             (Status::NoSignal, None)
