@@ -1078,8 +1078,10 @@ flux line only when its horizontal field is ≥ 2 σ of one reading \
 (`GuidanceConfig::flux_min_snr`); below, the rescuer keeps the last direction (the 5 m rule \
 still turns back): seed 3025 74 pulses (1.5×), failures 1 → 0 on 3000–3099, steps / ideal \
 mean 1.273 → 1.268, 1.237 → 1.245, 1.253 → 1.236, 1.274 → 1.231 (medians 1.201 → 1.206, \
-1.184 → 1.183, 1.165 → 1.156, 1.179 → 1.179; the slow seeds 2006 155 → 110, 1047 81 → 51 \
-pulses). (b) The bracketing offset grows with the range to the mean, 0.35 × range within \
+1.184 → 1.183, 1.165 → 1.156, 1.179 → 1.179; 2006 155 → 110, 1047 81 → 51 pulses, but \
+3023 93 → 142, 2057 62 → 85 and 1063 60 → 89 — 2.98× the ideal, a near failure: weak pulses \
+coming and going on the equator of a near-horizontal moment at 34 m, where the flux line runs \
+across the way to the victim; what the rescuer meets there depends on the path either way). (b) The bracketing offset grows with the range to the mean, 0.35 × range within \
 0.5–1 m (`GuidanceConfig::bracket_range_ratio`): over a deep victim one step to either side \
 turns the field little. Max probe-point error 0.316 → 0.253, 0.466 → 0.379, 0.528 → 0.518, \
 0.307 → 0.307 m with medians and steps unchanged. (c) Seeds 1012 and 1037 probed 0.38 and \
