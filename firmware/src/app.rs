@@ -665,16 +665,15 @@ impl Receiver {
                 reinitialized,
                 signal_lost,
                 height_m: Some(self.height_m()),
+                // Several victims: no lowering. Each lowering and the raise before the
+                // walk to the next victim make the rescuer stand ≈ 3 s; measured on
+                // `multi-report` seeds 1–50 (604 victims), lowering every victim took the
+                // median time to find all from 119 to 130 s for a per-victim error of
+                // 0.037 instead of 0.051 m, both well within what the probe reaches. With
+                // one victim the lowering is nearly free (the stand overlaps the fine
+                // search's own) and pays.
+                lower_allowed: self.bank.len() <= 1,
             });
-            // Several victims: no lowering. Each lowering and the raise before the walk to
-            // the next victim make the rescuer stand ≈ 3 s; measured on `multi-report`
-            // seeds 1–50 (604 victims), lowering every victim took the median time to find
-            // all from 119 to 130 s for a per-victim error of 0.037 instead of 0.051 m,
-            // both well within what the probe reaches. With one victim the lowering is
-            // nearly free (the stand overlaps the fine search's own) and pays.
-            if self.last.height_prompt == HeightPrompt::Lower && self.bank.len() > 1 {
-                self.last.height_prompt = HeightPrompt::None;
-            }
             // Lifting, lowering or raising the receiver: stand, steps not counted.
             self.motion
                 .set_lift_mode(self.last.lift || self.last.height_prompt != HeightPrompt::None);

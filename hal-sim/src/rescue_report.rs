@@ -1068,7 +1068,40 @@ bracketing over the mean (error max 0.316 → 0.453 and 0.466 → 0.379 m, media
 lowering asked for within 1.0 or 0.6 m instead of 2 m (±0.5 pulse, error unchanged); the \
 second-order linearization noise of the walking mode (`SogConfig::nonlinear_k` 3 or 6) on \
 the transmitter-off fault (seeds 20–43): more searches ending metres off, not fewer. Still \
-missed: 1.10 × ideal (1.20 / 1.18; from the start 1.167 / 1.154, the paper's SOG 1.170) — \
+missed: 1.10 × ideal (1.20 / 1.18; from the start 1.167 / 1.15- **A noisy flux line, the bracketing span, an unmeasured lowering (issue 6, seventh \
+round).** Measured on four ranges of 100 seeds (1, 1000, 2000, 3000; calibrated, \
+`--first-seed N --calibrated-only`). (a) Seed 3025 failed (220 pulses, 170 on the flux \
+line): a near-vertical moment heard from 43 m near its equator, where the field is nearly \
+vertical and its horizontal part below the noise; each pulse's noisy horizontal direction \
+steered the arrow, and the rescuer walked in circles at 42–50 m. A pulse now steers the \
+flux line only when its horizontal field is ≥ 2 σ of one reading \
+(`GuidanceConfig::flux_min_snr`); below, the rescuer keeps the last direction (the 5 m rule \
+still turns back): seed 3025 74 pulses (1.5×), failures 1 → 0 on 3000–3099, steps / ideal \
+mean 1.273 → 1.268, 1.237 → 1.245, 1.253 → 1.236, 1.274 → 1.231 (medians 1.201 → 1.206, \
+1.184 → 1.183, 1.165 → 1.156, 1.179 → 1.179; 2006 155 → 110, 1047 81 → 51 pulses, but \
+3023 93 → 142, 2057 62 → 85 and 1063 60 → 89 — 2.98× the ideal, a near failure: weak pulses \
+coming and going on the equator of a near-horizontal moment at 34 m, where the flux line runs \
+across the way to the victim; what the rescuer meets there depends on the path either way). (b) The bracketing offset grows with the range to the mean, 0.35 × range within \
+0.5–1 m (`GuidanceConfig::bracket_range_ratio`): over a deep victim one step to either side \
+turns the field little. Max probe-point error 0.316 → 0.253, 0.466 → 0.379, 0.528 → 0.518, \
+0.307 → 0.307 m with medians and steps unchanged. (c) Seeds 1012 and 1037 probed 0.38 and \
+0.28 m off with the depth 0.55 and 0.84 m off: the rescuer was finishing the steps under way \
+when \"LOWER TO SNOW\" came, the prompt ran out after its 4 pulses, and the lowering made a \
+second later went unmeasured (the device was no longer in lift mode): the filter took the \
+receiver for 0.8 m higher than it was. The lowering prompt now runs until the rescuer has \
+stood through 4 pulse intervals with it (at most 12 pulses in all): on 1000–1099 max 0.379 \
+→ 0.215 m, no run left with the tracked height > 0.3 m off (a scratch check over the four \
+ranges found only those two before); the other ranges unchanged. With several victims the \
+application now tells the guidance not to ask for the lowering \
+(`GuidanceInput::lower_allowed`) instead of blanking a prompt the guidance still waited on \
+before \"probe here\": with the standing count that wait grew (`multi-report` time to find \
+all, mean 124 → 130 s); without it 124.1 → 119.6 s, median 121.9 → 118.8 s. Tried and not \
+kept: the flux-line pulses weighted by their horizontal SNR² (the angle's Fisher \
+information, saturated at SNR 5 or 10): steps unchanged; the filter's `init_snr` 10 → 6 \
+with (a): the flux line 22 → 15 pulses, steps / ideal mean −0.01…−0.03 on three ranges and \
++0.004 on one, medians ±0.01 — too little to re-measure every open-loop report for; 14: \
+slower.\n\
+4, the paper's SOG 1.170) — \
 per pulse, the fine search's last 3 m cost ≈ 4.7 pulses over the straight walk (the \
 step-by-step moves, the lowering, two confirming pulses) and the flux line ≈ 3 (median; a \
 15-pulse 90th percentile: near the equator of a near-vertical moment the horizontal field \
@@ -1303,11 +1336,14 @@ mod tests {
         // Seeds 19 and 80: weak transmitters heard from ≈ 37 m, whose pulses come and go
         // on the flux line. Before the receiver reversed the flux line on a lost weak
         // signal, the rescuer walked in and out at the edge of reception for minutes
-        // (4.6× and 3.1× the ideal steps, the report's two failures); now 1.7× and 1.6×.
+        // (4.6× and 3.1× the ideal steps, the report's two failures); now 1.3× and 1.6×.
+        // Seed 80 still loses the signal on the way (the reversal is exercised); seed 19
+        // no longer does since a horizontal field within the noise keeps the rescuer
+        // walking straight (`GuidanceConfig::flux_min_snr`).
         for seed in [19, 80] {
             let r = run_one(Case::SogCalibrated, seed).expect("run");
             assert!(
-                r.phases[0] > 0,
+                seed != 80 || r.phases[0] > 0,
                 "seed {seed}: the signal was lost on the way"
             );
             let steps = r.steps.expect("reached probe here");
@@ -1319,6 +1355,19 @@ mod tests {
                 r.error_h_m
             );
         }
+    }
+
+    #[test]
+    fn a_noisy_horizontal_field_does_not_walk_the_rescuer_in_circles() {
+        // Seed 3025: a near-vertical moment heard from 43 m near its equator, where the
+        // field is nearly vertical and its horizontal part below the noise. Following each
+        // pulse's noisy horizontal direction walked the rescuer in circles for 170 pulses
+        // (4.4× the ideal steps, a failure); holding the direction until the horizontal
+        // field is significant (`GuidanceConfig::flux_min_snr`) reaches it in 1.5×.
+        let r = run_one(Case::SogCalibrated, 3025).expect("run");
+        let steps = r.steps.expect("reached probe here");
+        let ratio = steps / r.ideal_steps.expect("ideal steps");
+        assert!(ratio < 2.0, "{steps} steps, {ratio:.2}× ideal");
     }
 
     #[test]
