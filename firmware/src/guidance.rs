@@ -622,7 +622,11 @@ impl Guidance {
         if out.lift {
             self.lift_pulses = self.lift_pulses.saturating_add(1);
         } else if out.height_prompt != HeightPrompt::None {
-            // Stand and move the receiver first: no probe meanwhile.
+            // Stand and move the receiver first: no probe meanwhile, and the pulses before
+            // the move confirm nothing: the lowered receiver's first pulses must (seed 71
+            // without calibration probed on the first pulse at the snow, the depth still
+            // 0.85 m off from the pulses 1 m up).
+            self.probe_count = 0;
         } else if self.probe_count >= c.probe_confirm_pulses
             || self.over_mean >= c.probe_timeout_pulses
             || (over && plateau)
@@ -1423,6 +1427,28 @@ mod tests {
             .filter(|_| g.update(&walking(0.6)).height_prompt == HeightPrompt::Lower)
             .count();
         assert_eq!(shown, most);
+    }
+
+    #[test]
+    fn probe_here_is_confirmed_by_pulses_after_the_lowering() {
+        let cfg = GuidanceConfig::default();
+        let mut g = localized_search(cfg);
+        // Right over a tight mean at 1 m: "probe here" would need two pulses, but the
+        // lowering comes first, as often as it is shown.
+        let over = est(Vec3::new(0.05, 0.0, -2.2), 0.05);
+        for _ in 0..3 {
+            let o = g.update(&at_height(over, Some(1.0)));
+            assert_eq!(o.height_prompt, HeightPrompt::Lower);
+            assert_eq!(o.status, Status::Localized);
+        }
+        // Lowered: the pulses from 1 m up confirm nothing; two at the snow do.
+        let low = est(Vec3::new(0.05, 0.0, -1.4), 0.05);
+        let o = g.update(&at_height(low, Some(0.2)));
+        assert_eq!(
+            (o.height_prompt, o.status),
+            (HeightPrompt::None, Status::Localized)
+        );
+        assert_eq!(g.update(&at_height(low, Some(0.2))).status, Status::Probe);
     }
 
     #[test]

@@ -1040,6 +1040,48 @@ const FINDINGS: &str = "\
 The phase tables split the pulses from the first reception to \"probe here\" by what the \
 display showed; `hal-sim rescue-report --trace SEED [--trace-case sog-uncalibrated]` prints \
 one rescue pulse by pulse, `--first-seed 1000` runs a separate range of scenarios.\n\n\
+- **A noisy flux line, the bracketing span, the lowering (issue 6, seventh round).** \
+Measured on four ranges of 100 seeds (1, 1000, 2000, 3000; calibrated, \
+`--first-seed N --calibrated-only`). (a) Seed 3025 failed (220 pulses, 170 on the flux \
+line): a near-vertical moment heard from 43 m near its equator, where the field is nearly \
+vertical and its horizontal part below the noise; each pulse's noisy horizontal direction \
+steered the arrow, and the rescuer walked in circles at 42–50 m. A pulse now steers the \
+flux line only when its horizontal field is ≥ 2 σ of one reading \
+(`GuidanceConfig::flux_min_snr`); below, the rescuer keeps the last direction (the 5 m rule \
+still turns back): seed 3025 74 pulses (1.5×), failures 1 → 0 on 3000–3099, steps / ideal \
+mean 1.273 → 1.268, 1.237 → 1.245, 1.253 → 1.236, 1.274 → 1.231 (medians 1.201 → 1.206, \
+1.184 → 1.183, 1.165 → 1.156, 1.179 → 1.179; 2006 155 → 110, 1047 81 → 51 pulses, but \
+3023 93 → 142, 2057 62 → 85 and 1063 60 → 89 — 2.98× the ideal, a near failure: weak pulses \
+coming and going on the equator of a near-horizontal moment at 34 m, where the flux line runs \
+across the way to the victim; what the rescuer meets there depends on the path either way). (b) The bracketing offset grows with the range to the mean, 0.35 × range within \
+0.5–1 m (`GuidanceConfig::bracket_range_ratio`): over a deep victim one step to either side \
+turns the field little. Max probe-point error 0.316 → 0.253, 0.466 → 0.379, 0.528 → 0.518, \
+0.307 → 0.307 m with medians and steps unchanged. (c) Seeds 1012 and 1037 probed 0.38 and \
+0.28 m off with the depth 0.55 and 0.84 m off: the rescuer was finishing the steps under way \
+when \"LOWER TO SNOW\" came, the prompt ran out after its 4 pulses, and the lowering made a \
+second later went unmeasured (the device was no longer in lift mode): the filter took the \
+receiver for 0.8 m higher than it was. The lowering prompt now runs until the rescuer has \
+stood through 4 pulse intervals with it (at most 12 pulses in all): on 1000–1099 max 0.379 \
+→ 0.215 m, no run left with the tracked height > 0.3 m off (a scratch check over the four \
+ranges found only those two before); the other ranges unchanged. With several victims the \
+application now tells the guidance not to ask for the lowering \
+(`GuidanceInput::lower_allowed`) instead of blanking a prompt the guidance still waited on \
+before \"probe here\": with the standing count that wait grew (`multi-report` time to find \
+all, mean 124 → 130 s); without it 124.1 → 119.6 s, median 121.9 → 118.8 s. (d) The pulses \
+counted toward \"probe here\" before a height prompt no longer count after it: seed 71 \
+without calibration probed on the first pulse at the snow, its depth still 0.85 m off from \
+the pulses 1 m up. Depth error at \"probe here\" without calibration, max 0.85 → 0.40 and \
+0.59 → 0.28 m, mean 0.095 → 0.079 and 0.086 → 0.076 m (seeds 1–100 / 1000–1099; calibrated \
+max 0.13 → 0.13 and 0.23 → 0.21 m); horizontal median 0.048 → 0.046 and 0.052 → 0.053 m \
+(uncalibrated 0.055 → 0.052 and 0.053 → 0.054 m); for about one pulse more: steps / ideal \
+median 1.206 → 1.206 and 1.183 → 1.192 (uncalibrated 1.208 → 1.222 and 1.180 → 1.190). \
+Tried and not kept: the flux-line pulses weighted by their horizontal SNR² (the angle's Fisher \
+information, saturated at SNR 5 or 10): steps unchanged; the filter's `init_snr` 10 → 6 \
+with (a): the flux line 22 → 15 pulses, steps / ideal mean −0.01…−0.03 on three ranges and \
++0.004 on one, medians ±0.01 — too little to re-measure every open-loop report for; 14: \
+slower; the σ plateau's ceiling 0.225 → 0.15 or 0.18 m, and the plateau held on two \
+pulses before \"probe here\": the max on the four ranges moved both ways (0.518 → 0.206 m \
+on 2000–2099 but 0.215 → 0.381 m on 1000–1099), steps +0.01…0.03.\n\
 - **Edge of reception, the depth prior, the scale gate (issue 6, sixth round).** (a) The \
 two failures of seeds 1–100 (19, 80) and the one of 1000–1099 (1078) were weak beacons heard \
 from ≈ 37 m whose pulses came and went: at the edge of reception a falling |H| shows as \
@@ -1068,40 +1110,7 @@ bracketing over the mean (error max 0.316 → 0.453 and 0.466 → 0.379 m, media
 lowering asked for within 1.0 or 0.6 m instead of 2 m (±0.5 pulse, error unchanged); the \
 second-order linearization noise of the walking mode (`SogConfig::nonlinear_k` 3 or 6) on \
 the transmitter-off fault (seeds 20–43): more searches ending metres off, not fewer. Still \
-missed: 1.10 × ideal (1.20 / 1.18; from the start 1.167 / 1.15- **A noisy flux line, the bracketing span, an unmeasured lowering (issue 6, seventh \
-round).** Measured on four ranges of 100 seeds (1, 1000, 2000, 3000; calibrated, \
-`--first-seed N --calibrated-only`). (a) Seed 3025 failed (220 pulses, 170 on the flux \
-line): a near-vertical moment heard from 43 m near its equator, where the field is nearly \
-vertical and its horizontal part below the noise; each pulse's noisy horizontal direction \
-steered the arrow, and the rescuer walked in circles at 42–50 m. A pulse now steers the \
-flux line only when its horizontal field is ≥ 2 σ of one reading \
-(`GuidanceConfig::flux_min_snr`); below, the rescuer keeps the last direction (the 5 m rule \
-still turns back): seed 3025 74 pulses (1.5×), failures 1 → 0 on 3000–3099, steps / ideal \
-mean 1.273 → 1.268, 1.237 → 1.245, 1.253 → 1.236, 1.274 → 1.231 (medians 1.201 → 1.206, \
-1.184 → 1.183, 1.165 → 1.156, 1.179 → 1.179; 2006 155 → 110, 1047 81 → 51 pulses, but \
-3023 93 → 142, 2057 62 → 85 and 1063 60 → 89 — 2.98× the ideal, a near failure: weak pulses \
-coming and going on the equator of a near-horizontal moment at 34 m, where the flux line runs \
-across the way to the victim; what the rescuer meets there depends on the path either way). (b) The bracketing offset grows with the range to the mean, 0.35 × range within \
-0.5–1 m (`GuidanceConfig::bracket_range_ratio`): over a deep victim one step to either side \
-turns the field little. Max probe-point error 0.316 → 0.253, 0.466 → 0.379, 0.528 → 0.518, \
-0.307 → 0.307 m with medians and steps unchanged. (c) Seeds 1012 and 1037 probed 0.38 and \
-0.28 m off with the depth 0.55 and 0.84 m off: the rescuer was finishing the steps under way \
-when \"LOWER TO SNOW\" came, the prompt ran out after its 4 pulses, and the lowering made a \
-second later went unmeasured (the device was no longer in lift mode): the filter took the \
-receiver for 0.8 m higher than it was. The lowering prompt now runs until the rescuer has \
-stood through 4 pulse intervals with it (at most 12 pulses in all): on 1000–1099 max 0.379 \
-→ 0.215 m, no run left with the tracked height > 0.3 m off (a scratch check over the four \
-ranges found only those two before); the other ranges unchanged. With several victims the \
-application now tells the guidance not to ask for the lowering \
-(`GuidanceInput::lower_allowed`) instead of blanking a prompt the guidance still waited on \
-before \"probe here\": with the standing count that wait grew (`multi-report` time to find \
-all, mean 124 → 130 s); without it 124.1 → 119.6 s, median 121.9 → 118.8 s. Tried and not \
-kept: the flux-line pulses weighted by their horizontal SNR² (the angle's Fisher \
-information, saturated at SNR 5 or 10): steps unchanged; the filter's `init_snr` 10 → 6 \
-with (a): the flux line 22 → 15 pulses, steps / ideal mean −0.01…−0.03 on three ranges and \
-+0.004 on one, medians ±0.01 — too little to re-measure every open-loop report for; 14: \
-slower.\n\
-4, the paper's SOG 1.170) — \
+missed: 1.10 × ideal (1.20 / 1.18; from the start 1.167 / 1.154, the paper's SOG 1.170) — \
 per pulse, the fine search's last 3 m cost ≈ 4.7 pulses over the straight walk (the \
 step-by-step moves, the lowering, two confirming pulses) and the flux line ≈ 3 (median; a \
 15-pulse 90th percentile: near the equator of a near-vertical moment the horizontal field \
