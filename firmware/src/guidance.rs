@@ -16,7 +16,9 @@
 //!   where one pulse's direction is off by tens of degrees), so the direction is the
 //!   principal axis of the sign-free tensor `Σ w h_xy h_xyᵀ / |h_xy|²` of the recent
 //!   pulses (forgotten over [`GuidanceConfig::flux_memory_m`] walked), each weighted by
-//!   its signal-to-noise ratio `w = s² / (1 + s²)`, `s = |H| / (√3 σ_bkg)`; and the
+//!   its signal-to-noise ratio `w = s² / (1 + s²)`, `s = |H| / (√3 σ_bkg)`; a pulse
+//!   whose horizontal field is within [`GuidanceConfig::flux_min_snr`] reading σ does not
+//!   enter it (the rescuer keeps the last direction, or the heading before any); and the
 //!   flip rule compares a smoothed |H| (mean of the last pulses), so that one noisy pulse
 //!   neither flips nor holds the direction.
 //! - [`Status::Localized`]: once the receiver lies outside the belief's 3σ ellipse
@@ -27,7 +29,8 @@
 //!   Within [`GuidanceConfig::fine_search_m`] the depth is shown (the fine search).
 //!   Standing over the mean while the belief is still wider than the probe radius, the
 //!   arrow alternates to either side of the mean along the belief's most uncertain
-//!   horizontal axis (the classical bracketing): a single spot cannot separate the
+//!   horizontal axis (the classical bracketing, the offset growing with the range, see
+//!   [`GuidanceConfig::bracket_range_ratio`]): a single spot cannot separate the
 //!   transmitter's position from its moment.
 //! - [`Status::Probe`]: the issue's rule, "probe here when the horizontal distance is
 //!   below the estimate's uncertainty": the horizontal distance to the mean is within
@@ -48,7 +51,9 @@
 //!   by the lowering, and the measured 0.8 m move pins the range); a lowered receiver
 //!   whose mean is farther than [`GuidanceConfig::raise_beyond_m`] is asked to be raised.
 //!   The depth shown is below the snow from the tracked height
-//!   ([`GuidanceInput::height_m`]). "Probe here" waits while a prompt shows.
+//!   ([`GuidanceInput::height_m`]). "Probe here" waits while a prompt shows, and is
+//!   confirmed by pulses after it; the lowering prompt stays until the rescuer has stood
+//!   through [`GuidanceConfig::height_prompt_pulses`] pulses of it.
 //!
 //! Angles: bearings in `G` are measured from north toward west (counter-clockwise seen
 //! from above, like yaw); the arrow is the bearing minus the device's yaw, positive to

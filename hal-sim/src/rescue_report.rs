@@ -1081,7 +1081,11 @@ with (a): the flux line 22 → 15 pulses, steps / ideal mean −0.01…−0.03 o
 +0.004 on one, medians ±0.01 — too little to re-measure every open-loop report for; 14: \
 slower; the σ plateau's ceiling 0.225 → 0.15 or 0.18 m, and the plateau held on two \
 pulses before \"probe here\": the max on the four ranges moved both ways (0.518 → 0.206 m \
-on 2000–2099 but 0.215 → 0.381 m on 1000–1099), steps +0.01…0.03.\n\
+on 2000–2099 but 0.215 → 0.381 m on 1000–1099), steps +0.01…0.03; a pulse on which the \
+mean jumped by more than the walk plus σ_h not counted toward \"probe here\" (seed 64 \
+probed on such a jump, after a turn's lever-arm noise): steps / ideal median +0.03…0.05, \
+error medians −0.006…0 m, maxima both ways; with 2 σ_h: steps +0.00…0.01, errors and \
+maxima unchanged.\n\
 - **Edge of reception, the depth prior, the scale gate (issue 6, sixth round).** (a) The \
 two failures of seeds 1–100 (19, 80) and the one of 1000–1099 (1078) were weak beacons heard \
 from ≈ 37 m whose pulses came and went: at the edge of reception a falling |H| shows as \
