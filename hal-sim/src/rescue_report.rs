@@ -1384,6 +1384,28 @@ mod tests {
     }
 
     #[test]
+    fn a_lowering_started_after_the_steps_under_way_is_measured() {
+        // Seeds 1012 and 1037: "LOWER TO SNOW" came while the rescuer was finishing
+        // steps; the prompt ran out before the lowering, which went unmeasured, and the
+        // firmware took the receiver for 0.8 m higher than it was (probe 0.38 / 0.28 m
+        // off). The prompt now waits for the rescuer to stand.
+        for seed in [1012, 1037] {
+            let mut worst: f64 = 0.0;
+            let o = closed_loop::run(&Case::SogCalibrated.config(seed), &mut |r, _| {
+                worst = worst.max((f64::from(r.display.height_m) - r.rx[2]).abs());
+            })
+            .expect("run");
+            // The hand's bob is a few centimetres; an unmeasured lowering is 0.8 m.
+            assert!(worst < 0.15, "seed {seed}: tracked height {worst:.2} m off");
+            assert!(
+                o.error_h_m.is_some_and(|e| e < 0.25),
+                "seed {seed}: {:?}",
+                o.error_h_m
+            );
+        }
+    }
+
+    #[test]
     fn median_and_the_probe_tradeoff_table() {
         assert_eq!(median(&[1.0, 2.0, 3.0]), 2.0);
         assert_eq!(median(&[1.0, 2.0, 3.0, 4.0]), 2.5);
