@@ -222,6 +222,14 @@ pub struct GuidanceConfig {
     pub height_prompt_pulses: u8,
 }
 
+impl GuidanceConfig {
+    /// Variance (A²/m²) of one field component's reading at a field of squared magnitude
+    /// `h2` (ICRA 2006 eq. 10: background plus the part proportional to |H|).
+    fn reading_var(&self, h2: f32) -> f32 {
+        self.sigma_bkg * self.sigma_bkg + self.k_sen * self.k_sen * h2
+    }
+}
+
 /// A pulse interval with less dead-reckoned walk than this (m) counts as standing, for
 /// [`GuidanceConfig::height_prompt_pulses`] (a standing interval dead-reckons to 0).
 pub const PROMPT_STANDING_M: f32 = 0.1;
@@ -503,10 +511,7 @@ impl Guidance {
         // loop r = L sin²θ), so holding the direction while |H| is inconclusive costs
         // little.
         let margin = self.cfg.flip_margin_sigma
-            * libm::sqrtf(
-                self.cfg.sigma_bkg * self.cfg.sigma_bkg
-                    + self.cfg.k_sen * self.cfg.k_sen * self.best_h * self.best_h,
-            );
+            * libm::sqrtf(self.cfg.reading_var(self.best_h * self.best_h));
         if n > self.best_h {
             self.best_h = n;
             self.walked_since_best = 0.0;
@@ -545,7 +550,7 @@ impl Guidance {
         let nh2 = h.x * h.x + h.y * h.y;
         // A field within ~0.5° of vertical has no usable horizontal direction, nor one
         // whose horizontal part is within the reading noise.
-        let noise2 = c.sigma_bkg * c.sigma_bkg + c.k_sen * c.k_sen * h.norm_squared();
+        let noise2 = c.reading_var(h.norm_squared());
         let significant = nh2 >= c.flux_min_snr * c.flux_min_snr * noise2;
         if significant && nh2.is_finite() && nh2 > 1e-4 * h.norm_squared() && nh2 > 0.0 {
             let s2 = if c.sigma_bkg > 0.0 {
