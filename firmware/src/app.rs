@@ -734,7 +734,8 @@ impl Receiver {
 
     /// The display now: the last pulse's guidance, with the arrow turned by the device's
     /// current heading (the compass keeps the arrow right between pulses), and "no
-    /// signal" when no pulse came for [`AppConfig::signal_timeout_s`].
+    /// signal" when no pulse came for [`AppConfig::signal_timeout_s`] — then with an
+    /// arrow to where a localized target is now, the walk since its last pulse included.
     pub fn display_model(&self) -> DisplayModel {
         let g = &self.last;
         let yaw = self.motion.attitude().0.z;
@@ -817,7 +818,6 @@ impl Receiver {
         }
     }
 
-    /// The victim list now: distance and direction to each victim's estimate.
     /// Whether the target's own pulses stopped for longer than the signal timeout (or
     /// there is no target). Withheld (overlapping) pulses keep the target alive: its own
     /// may be among them; another victim's pulses do not guide to this one.
@@ -848,6 +848,7 @@ impl Receiver {
         v.position_after(&to_estimate(&more))
     }
 
+    /// The victim list now: distance and direction to each victim's estimate.
     fn victim_list(&self, yaw: f32) -> [Option<VictimRow>; MAX_VICTIMS] {
         let mut list = [None; MAX_VICTIMS];
         for (i, v) in self.bank.active() {
