@@ -531,8 +531,7 @@ impl Receiver {
                 self.t_now = t;
                 // The lift and height prompts last while pulses come; without them, steps
                 // count again.
-                let d = self.display_model();
-                if self.motion.lift_mode() && !d.lift && d.height_prompt == HeightPrompt::None {
+                if self.motion.lift_mode() && !self.prompt_shown() {
                     self.motion.set_lift_mode(false);
                 }
                 Ok(())
@@ -735,7 +734,8 @@ impl Receiver {
 
     /// The display now: the last pulse's guidance, with the arrow turned by the device's
     /// current heading (the compass keeps the arrow right between pulses), and "no
-    /// signal" when no pulse came for [`AppConfig::signal_timeout_s`].
+    /// signal" when no pulse came for [`AppConfig::signal_timeout_s`] — then with an
+    /// arrow to where a localized target is now, the walk since its last pulse included.
     pub fn display_model(&self) -> DisplayModel {
         let g = &self.last;
         let yaw = self.motion.attitude().0.z;
@@ -746,13 +746,7 @@ impl Receiver {
                 ..c.display(self.t_now, yaw)
             };
         }
-        // The target's own pulses count: another victim's do not guide to this one.
-        // Withheld (overlapping) pulses keep the target alive: its own may be among them.
-        let target_t = self
-            .target
-            .and_then(|i| self.bank.get(i))
-            .map(|v| self.last_heard_t(v));
-        let timed_out = target_t.is_none_or(|t| self.t_now - t > self.cfg.signal_timeout_s);
+        let timed_out = self.target_timed_out();
         let (status, arrow_deg) = if timed_out && g.status != Status::Probe {
             (Status::NoSignal, None)
         } else {
@@ -764,22 +758,37 @@ impl Receiver {
             )
         };
         let list = self.victim_list(yaw);
-        // Several victims: a target whose own pulses do not come (withheld in a long
-        // overlap, or just chosen after a mark) is shown where its mixture puts it (its
-        // list row), so the rescuer walks there instead of searching blindly; its next
-        // own pulse brings the search control's guidance back.
-        let silent = (self.bank.len() >= 2 && status == Status::NoSignal)
-            .then(|| list.iter().flatten().find(|r| r.target))
+        // A target whose own pulses do not come is shown where its mixture puts it now
+        // (carried over the walk since its last pulse), so the rescuer walks there instead
+        // of searching blindly; its next own pulse brings the search control's guidance
+        // back. Several victims (withheld in a long overlap, or just chosen after a mark):
+        // any estimate, shown as localized. One victim (its transmitter paused, or the
+        // pulses lost in interference): only a mixture the search control had trusted
+        // (localized), under "no signal"; a flux-line mixture does not say where to go.
+        let several = self.bank.len() >= 2;
+        let silent = (status == Status::NoSignal && (several || g.status == Status::Localized))
+            .then(|| self.target_position_now())
             .flatten()
-            .and_then(|r| Some((r.arrow_deg?, r.distance_m?)));
-        let (status, arrow_deg, walk_m, horizontal_m) = match silent {
-            Some((arrow, d)) => (Status::Localized, Some(arrow), Some(d), Some(d)),
-            None => (status, arrow_deg, g.walk_m, g.horizontal_m),
+            .and_then(|p| {
+                let h = libm::sqrtf(p.x * p.x + p.y * p.y);
+                let arrow = to_degrees_wrapped(relative_arrow(libm::atan2f(p.y, p.x), yaw));
+                arrow.is_finite().then_some((arrow, h, p.norm()))
+            });
+        let (status, arrow_deg, walk_m, horizontal_m, distance_m) = match silent {
+            Some((arrow, h, d)) => {
+                let shown = if several {
+                    Status::Localized
+                } else {
+                    Status::NoSignal
+                };
+                (shown, Some(arrow), Some(h), Some(h), Some(d))
+            }
+            None => (status, arrow_deg, g.walk_m, g.horizontal_m, g.distance_m),
         };
         DisplayModel {
             status,
             arrow_deg,
-            distance_m: g.distance_m,
+            distance_m,
             horizontal_m,
             depth_m: g.depth_m,
             walk_m,
@@ -807,6 +816,36 @@ impl Receiver {
             found: u8::try_from(self.bank.active().filter(|(_, v)| v.marked()).count())
                 .unwrap_or(u8::MAX),
         }
+    }
+
+    /// Whether the target's own pulses stopped for longer than the signal timeout (or
+    /// there is no target). Withheld (overlapping) pulses keep the target alive: its own
+    /// may be among them; another victim's pulses do not guide to this one.
+    fn target_timed_out(&self) -> bool {
+        self.target
+            .and_then(|i| self.bank.get(i))
+            .map(|v| self.last_heard_t(v))
+            .is_none_or(|t| self.t_now - t > self.cfg.signal_timeout_s)
+    }
+
+    /// Whether the display shows a lift or height prompt, without building it (the
+    /// check runs on every IMU sample).
+    fn prompt_shown(&self) -> bool {
+        if self.classic.is_some() {
+            let d = self.display_model();
+            return d.lift || d.height_prompt != HeightPrompt::None;
+        }
+        !self.target_timed_out()
+            && (self.last.lift || self.last.height_prompt != HeightPrompt::None)
+    }
+
+    /// The target victim's position relative to the receiver now: its estimate carried
+    /// over the motion since its last pulse, the running interval included (closed on a
+    /// copy of the motion state, which is left as it is).
+    fn target_position_now(&self) -> Option<Vec3> {
+        let v = self.target.and_then(|i| self.bank.get(i))?;
+        let more = self.motion.clone().take_displacement(self.t_now);
+        v.position_after(&to_estimate(&more))
     }
 
     /// The victim list now: distance and direction to each victim's estimate.

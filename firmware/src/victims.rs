@@ -273,10 +273,27 @@ impl Victim {
     /// estimate at its last pulse minus the scaled motion since (IROS eq. 5 applied to
     /// the mean only). `None` before its mixture is initialized.
     pub fn position_now(&self) -> Option<Vec3> {
+        self.position_moved(&self.pending.d.translation, &self.pending.d.absolute)
+    }
+
+    /// [`Victim::position_now`] carried further over `more`, the motion since the last
+    /// cut of the running interval (peeked from the motion pipeline between pulses): where
+    /// to point while no pulse comes. The means of IROS eq. 5 only: pointing needs no
+    /// covariance. `None` before its mixture is initialized.
+    pub fn position_after(&self, more: &Displacement) -> Option<Vec3> {
+        let d = &self.pending.d;
+        let rd = rotation_from_rpy(&d.rotation);
+        let translation = d.translation + rd * more.translation;
+        let absolute = d.absolute + rd * more.absolute;
+        self.position_moved(&translation, &absolute)
+    }
+
+    /// The estimate minus the motion (`translation` scaled by the estimated scale, plus
+    /// the `absolute` part) in the receiver's axes at this victim's last pulse.
+    fn position_moved(&self, translation: &Vec3, absolute: &Vec3) -> Option<Vec3> {
         let e = self.filter.estimate()?;
         let r = rotation_from_rpy(&self.rpy_last);
-        let moved = r * (self.pending.d.translation * e.scale + self.pending.d.absolute);
-        let p = e.p - moved;
+        let p = e.p - r * (translation * e.scale + absolute);
         p.iter().all(|v| v.is_finite()).then_some(p)
     }
 }
@@ -772,6 +789,26 @@ mod tests {
             standing: false,
             floors: None,
         }
+    }
+
+    #[test]
+    fn the_position_is_carried_over_the_walk_since_the_last_pulse() {
+        let (tx, m) = (Vec3::new(0.0, 0.0, -1.5), Vec3::new(0.02, 0.0, 0.0));
+        let (bank, _, _) = walked_bank(&tx, &m);
+        let v = bank.get(0).unwrap();
+        let now = v.position_now().unwrap();
+        assert_eq!(v.position_after(&Displacement::zero()), Some(now));
+        // Level receiver, no motion pending: 3 m north and 0.4 m measured down (absolute)
+        // move the victim 3 m south (times the estimated scale) and 0.4 m up.
+        let scale = v.filter().estimate().unwrap().scale;
+        let mut more = Displacement::zero();
+        more.translation = Vec3::new(3.0, 0.0, 0.0);
+        more.absolute = Vec3::new(0.0, 0.0, -0.4);
+        let after = v.position_after(&more).unwrap();
+        let want = now - Vec3::new(3.0 * scale, 0.0, -0.4);
+        assert!((after - want).norm() < 1e-5, "{after:?} vs {want:?}");
+        more.translation.x = f32::NAN;
+        assert_eq!(v.position_after(&more), None);
     }
 
     #[test]

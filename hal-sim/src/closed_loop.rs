@@ -1154,8 +1154,10 @@ pub(crate) fn act(
     };
     plan.turned_back = false;
     let desired = view.psi + f64::from(arrow).to_radians() + heading_err;
-    let fine =
-        d.status == Status::Localized && d.walk_m.is_some_and(|w| f64::from(w) < cfg.fine_walk_m);
+    // Near the shown point the walk goes step by step, also to a silent victim's estimate
+    // (shown under "no signal").
+    let fine = matches!(d.status, Status::Localized | Status::NoSignal)
+        && d.walk_m.is_some_and(|w| f64::from(w) < cfg.fine_walk_m);
     if !fine {
         plan.end_phase = None;
         person.psi_des = desired;

@@ -183,12 +183,18 @@ fn transmitter_off_shows_no_signal_keeps_the_estimate_and_recovers() {
     let trace = run(&sim, &faulty);
     assert_sane("tx off", &trace);
     let timeout = f64::from(AppConfig::new(Vec3::z(), None).signal_timeout_s);
-    let last_before = trace.pulses_in(0.0, t_off).last().unwrap().t;
+    let last_before = trace.pulses_in(0.0, t_off).last().unwrap();
+    // A localized victim stays pointed at (see the test below); a flux-line one does not.
+    let localized = last_before
+        .result
+        .as_ref()
+        .is_ok_and(|d| d.status == Status::Localized);
+    let last_before = last_before.t;
     for d in &trace.displays {
         let silent_for = d.t - last_before;
         if d.t < t_off + 20.0 && silent_for > timeout + 0.1 {
             assert_eq!(d.display.status, Status::NoSignal, "at {:.1} s", d.t);
-            assert_eq!(d.display.arrow_deg, None);
+            assert_eq!(d.display.arrow_deg.is_some(), localized, "at {:.1} s", d.t);
         }
         if d.t > last_before && silent_for <= timeout - 0.1 {
             assert_ne!(d.display.status, Status::NoSignal, "at {:.1} s", d.t);
@@ -239,6 +245,83 @@ fn transmitter_off_for_good_leaves_the_last_estimate_and_no_signal() {
     let last = trace.displays.last().unwrap();
     assert_eq!(last.display.status, Status::NoSignal);
     assert!(trace.pulses.last().unwrap().estimate.is_some());
+}
+
+#[test]
+fn a_localized_victim_that_falls_silent_is_pointed_at_as_the_rescuer_walks_on() {
+    // The transmitter stops for good once the search control has localized the victim:
+    // the display says "no signal" and keeps pointing at the estimate, carried over the
+    // walk since the last pulse by the dead reckoning (not the arrow of the last pulse,
+    // which a walk of a few metres turns away from the victim).
+    let sim = search(24);
+    let clean = run(&sim, &sim.session);
+    let localized = |p: &&hal_sim::faults::drive::PulseStep| {
+        p.result
+            .as_ref()
+            .is_ok_and(|d| d.status == Status::Localized)
+    };
+    let first_localized = clean.pulses.iter().position(|p| localized(&p)).unwrap();
+    let last_heard = &clean.pulses[first_localized + 3];
+    assert!(localized(&last_heard), "still localized three pulses on");
+    let faulty = measurement::transmitter_off(&sim.session, last_heard.t + 0.01, f64::INFINITY);
+    let trace = run(&sim, &faulty);
+    assert_sane("silent localized", &trace);
+    // The estimate at the last pulse, placed in W from that pulse's true pose.
+    let truth: Vec<_> = sim.truth.truth().collect();
+    let pose_at = |t: f64| truth.iter().find(|r| (r.t - t).abs() < 0.005);
+    let at_last = pose_at(last_heard.t).unwrap();
+    let e = trace.pulses.last().unwrap().estimate.unwrap();
+    let est_w = [
+        at_last.p[0] + f64::from(e.p.x),
+        at_last.p[1] + f64::from(e.p.y),
+    ];
+    let timeout = f64::from(AppConfig::new(Vec3::z(), None).signal_timeout_s);
+    let mut checked = 0;
+    let mut walked_m: f64 = 0.0;
+    let (mut worst_deg, mut worst_walk_m): (f64, f64) = (0.0, 0.0);
+    for d in &trace.displays {
+        if d.t < last_heard.t + timeout + 0.2 {
+            continue;
+        }
+        assert_eq!(d.display.status, Status::NoSignal, "at {:.1} s", d.t);
+        let Some(pose) = truth.iter().rev().find(|r| r.t <= d.t && d.t - r.t < 0.06) else {
+            continue;
+        };
+        let (dx, dy) = (est_w[0] - pose.p[0], est_w[1] - pose.p[1]);
+        let dist = dx.hypot(dy);
+        walked_m = walked_m.max((pose.p[0] - at_last.p[0]).hypot(pose.p[1] - at_last.p[1]));
+        let arrow = d.display.arrow_deg.expect("an arrow to the estimate");
+        let shown = pose.rpy[2] + f64::from(arrow).to_radians();
+        let off = hal_sim::rescuer::wrap_pi(shown - dy.atan2(dx)).to_degrees();
+        let walk = f64::from(d.display.walk_m.expect("the walk to it"));
+        // The dead reckoning's scale error grows with the walk (≈ 2.5 % here): the point
+        // shown may be that far off, which turns the arrow by up to its angle at `dist`.
+        let allowed_m = 0.75 + 0.05 * walked_m;
+        let allowed_deg = (allowed_m / dist).atan().to_degrees() + 5.0;
+        worst_walk_m = worst_walk_m.max((walk - dist).abs());
+        if dist > 10.0 {
+            worst_deg = worst_deg.max(off.abs());
+        }
+        assert!(
+            off.abs() < allowed_deg,
+            "at {:.1} s: arrow {off:.1}° off at {dist:.1} m (allowed {allowed_deg:.1}°)",
+            d.t
+        );
+        assert!(
+            (walk - dist).abs() < allowed_m,
+            "at {:.1} s: walk shown {walk:.2} m, {dist:.2} m to the estimate after {walked_m:.1} m",
+            d.t
+        );
+        checked += 1;
+    }
+    println!(
+        "silent localized: {checked} displays over {walked_m:.1} m walked, arrow at most \
+         {worst_deg:.1}° off while over 10 m away, walk at most {worst_walk_m:.2} m off"
+    );
+    assert!(
+        checked >= 20 && walked_m > 5.0,
+        "{checked} displays, {walked_m:.1} m"
+    );
 }
 
 // ---------------------------------------------------------------- rescuer not walking

@@ -63,6 +63,8 @@ const STEP_LENGTH_M: Option<f32> = None;
 /// How the receiver guides: the SOGs estimator per victim, or `SearchMode::Classic` for
 /// the classical directional search (flux line + bracketing, one transmitter).
 const SEARCH_MODE: SearchMode = SearchMode::Sog;
+/// Longest time (s) the screen goes without a redraw when no pulse redraws it.
+const REDRAW_MAX_S: f32 = 1.0;
 /// ADC frames buffered between the DRDY interrupt and the main loop: 250 ms at 8 kSPS,
 /// room for the worst estimator step plus a display flush.
 const QUEUE_LEN: usize = 2048;
@@ -289,6 +291,18 @@ fn main() -> ! {
         defmt::panic!("sample clock refused its rates");
     };
     let mut last_imu_t = f32::NEG_INFINITY;
+    // Every redraw goes through here; `drawn_s` is the board time of the last one.
+    let drawn_s = core::cell::Cell::new(f32::NEG_INFINITY);
+    let mut show = |model: &firmware::app::DisplayModel, now_s: f32| {
+        if !screen_ok {
+            return;
+        }
+        drawn_s.set(now_s);
+        screen.clear(BinaryColor::Off).ok();
+        if display::draw(model, &mut screen).is_err() || screen.flush().is_err() {
+            defmt::warn!("display write failed");
+        }
+    };
     loop {
         while let Some(sample) = consumer.dequeue() {
             taken = taken.wrapping_add(1);
@@ -309,13 +323,8 @@ fn main() -> ! {
                         // Overlap, clipping, truncation: held out of the estimators.
                         _ => Some(receiver.on_withheld(t_pulse)),
                     };
-                    if let Some(model) = model
-                        && screen_ok
-                    {
-                        screen.clear(BinaryColor::Off).ok();
-                        if display::draw(&model, &mut screen).is_err() || screen.flush().is_err() {
-                            defmt::warn!("display write failed");
-                        }
+                    if let Some(model) = model {
+                        show(&model, clock.now_s());
                     }
                 }
                 Ok(None) => {}
@@ -330,15 +339,16 @@ fn main() -> ! {
                     Ok(n) => defmt::info!("victim {=u8} marked", n),
                     Err(_) => defmt::info!("mark: no victim to mark"),
                 }
-                if screen_ok {
-                    screen.clear(BinaryColor::Off).ok();
-                    let model = receiver.display_model();
-                    if display::draw(&model, &mut screen).is_err() || screen.flush().is_err() {
-                        defmt::warn!("display write failed");
-                    }
-                }
+                show(&receiver.display_model(), clock.now_s());
             }
             let t = clock.now_s();
+            // Pulses redraw the screen; without them it is redrawn at least every
+            // REDRAW_MAX_S, so that "NO SIGNAL" and the arrow to a silent victim (carried
+            // over the walk) show. Not at every tick: a flush holds the shared I2C bus
+            // ≈ 25 ms, two or three IMU ticks.
+            if t - drawn_s.get() >= REDRAW_MAX_S {
+                show(&receiver.display_model(), t);
+            }
             // A short hole in the ADC's samples holds the clock: skip that tick's sample.
             if let Some(imu) = imu.as_mut().filter(|_| t > last_imu_t) {
                 last_imu_t = t;

@@ -53,7 +53,8 @@ impl PulseStep {
     }
 }
 
-/// A display read between pulses (the board redraws it on every IMU tick).
+/// A display read between pulses (the board redraws it on each pulse, and at least once a
+/// second without them).
 #[derive(Debug, Clone, Copy)]
 pub struct DisplayRead {
     /// Log time, s.
