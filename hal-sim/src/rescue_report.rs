@@ -1108,7 +1108,11 @@ unchanged. `multi-report --tries 50`: 603 / 604 victims found as before (seed 50
 overlapping pair now found; seed 43 of the close pair now misses its third victim: a \
 second, seldom-heard track of a victim already marked stayed the target, now pointed at \
 exactly, until the time limit — tracker id churn, not the pointer), wrong-victim marks 2 → \
-0, per-victim median 0.050 → 0.049 m.
+0, per-victim median 0.050 → 0.049 m; on unseen seeds (`--tries 100 --first-seed 101` and \
+`201`) neutral: found 1196 → 1196 of 1204 and 1189 → 1190 of 1196, wrong-victim marks 14 → \
+13 and 8 → 14, medians 0.054 → 0.053 and 0.050 → 0.049 m. Tried and not kept: an unmarked \
+track within 1 m of a marked victim chosen as the next target only after every other one \
+(seed 43's duplicate): found +1 / −1 / −1 on the three ranges, wrong-victim marks 0 / 15 / 4.
 - **A noisy flux line, the bracketing span, the lowering (issue 6, seventh round).** \
 Measured on four ranges of 100 seeds (1, 1000, 2000, 3000; calibrated, \
 `--first-seed N --calibrated-only`). (a) Seed 3025 failed (220 pulses, 170 on the flux \
