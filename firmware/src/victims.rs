@@ -812,6 +812,50 @@ mod tests {
     }
 
     #[test]
+    fn the_walk_since_the_last_cut_is_taken_in_the_axes_after_the_pending_turn() {
+        // Another transmitter's pulse cuts victim 1's motion after a 90° turn to the
+        // left (yaw, counter-clockwise seen from above): a step "ahead" after it goes west
+        // (+y) in the axes of victim 1's last pulse (IROS eq. 5: t_a + R(Ψ_a) t_b).
+        let (tx, m) = (Vec3::new(0.0, 0.0, -1.5), Vec3::new(0.02, 0.0, 0.0));
+        let (mut bank, r, t) = walked_bank(&tx, &m);
+        let before = bank.get(0).unwrap().position_now().unwrap();
+        let mut turn = cut(Vec3::zeros());
+        turn.cut = Displacement::with_sigmas(
+            Vec3::zeros(),
+            Rpy::new(0.0, 0.0, core::f32::consts::FRAC_PI_2),
+            0.03,
+            0.005,
+        );
+        let att = Attitude::with_sigmas(Rpy::zeros(), 0.01, 0.02);
+        let other = crate::dipole::field(&(Vec3::new(-20.0, 15.0, -1.0) - r), &m).unwrap();
+        let i = bank.slot_for(Some(2), t + 0.5).unwrap();
+        assert_ne!(i, 0);
+        bank.step(
+            i,
+            Some(2),
+            &turn,
+            &att,
+            &Pulse {
+                h: other,
+                t: t + 0.5,
+            },
+        )
+        .unwrap();
+        let v = bank.get(0).unwrap();
+        assert_eq!(
+            v.position_now(),
+            Some(before),
+            "a turn on the spot moves nothing"
+        );
+        let scale = v.filter().estimate().unwrap().scale;
+        let mut ahead = Displacement::zero();
+        ahead.translation = Vec3::new(1.0, 0.0, 0.0);
+        let after = v.position_after(&ahead).unwrap();
+        let want = before - Vec3::new(0.0, scale, 0.0);
+        assert!((after - want).norm() < 1e-4, "{after:?} vs {want:?}");
+    }
+
+    #[test]
     fn a_new_track_goes_to_the_silent_victim_whose_mixture_explains_it() {
         let (tx, m) = (Vec3::new(0.0, 0.0, -1.5), Vec3::new(0.02, 0.0, 0.0));
         let (mut bank, r, t) = walked_bank(&tx, &m);
