@@ -770,9 +770,10 @@ impl Receiver {
             .then(|| self.target_position_now())
             .flatten()
             .and_then(|p| {
-                let h = libm::sqrtf(p.x * p.x + p.y * p.y);
-                let arrow = to_degrees_wrapped(relative_arrow(libm::atan2f(p.y, p.x), yaw));
-                arrow.is_finite().then_some((arrow, h, p.norm()))
+                let arrow = arrow_deg_to(&p, yaw);
+                arrow
+                    .is_finite()
+                    .then_some((arrow, p.xy().norm(), p.norm()))
             });
         let (status, arrow_deg, walk_m, horizontal_m, distance_m) = match silent {
             Some((arrow, h, d)) => {
@@ -856,9 +857,7 @@ impl Receiver {
             let row = VictimRow {
                 number: u8::try_from(i).unwrap_or(u8::MAX).saturating_add(1),
                 distance_m: p.map(|p| p.xy().norm()),
-                arrow_deg: p
-                    .map(|p| to_degrees_wrapped(relative_arrow(libm::atan2f(p.y, p.x), yaw)))
-                    .filter(|a| a.is_finite()),
+                arrow_deg: p.map(|p| arrow_deg_to(&p, yaw)).filter(|a| a.is_finite()),
                 marked: v.marked(),
                 target: self.target == Some(i),
             };
@@ -868,6 +867,12 @@ impl Receiver {
         }
         list
     }
+}
+
+/// The arrow (degrees, positive left, in (-180, 180]) to the position `p` relative to the
+/// receiver, for a device heading `yaw`.
+fn arrow_deg_to(p: &Vec3, yaw: f32) -> f32 {
+    to_degrees_wrapped(relative_arrow(libm::atan2f(p.y, p.x), yaw))
 }
 
 /// The motion pipeline's displacement as the estimators take it.
