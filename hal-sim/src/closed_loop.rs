@@ -36,18 +36,12 @@
 //!   centre line passes over the victim), then follows the display.
 //!
 //! [`Policy::DirectionalSearch`] replaces the receiver by the classical directional search
-//! (ICRA 2006 §II-A) as the rescuer's own policy, optimistic as in the paper's simulation
-//! ("the rescuer follows perfectly the flux lines"): the flux line is that of the true
-//! field, followed without lag or heading error (its sign is not known: it is chosen to
-//! agree with the walking direction); |H| is the noisy reading; the direction is reversed when |H| has not grown over
-//! 5 m; the fine (tertiary) search starts when the classical distance reading (|H| of a
-//! nominal beacon on its axis) is below 3 m, or when the flux line was reversed after
-//! passing a peak closer than 8 m (the rescuer goes back to the strongest reading); it is
-//! a cross search with the receiver just above the snow: along the walking direction, then
-//! across it, with 0.5 m then 0.2 m spacing, one pulse per point, each line continued while
-//! |H| grows (reversed when the first point is weaker) and stopped two points after the
-//! maximum; "found" is the rescuer standing at the strongest point of the last line.
+//! ([`crate::policies::directional`], settings in [`ClosedLoopConfig::ds`]) as the
+//! rescuer's own policy, optimistic as in the paper's simulation: the flux line of the
+//! true field followed without lag or heading error, the noisy |H| read; in its cross
+//! search the receiver is carried from point to point just above the snow.
 use crate::physics::{GRAVITY_W, M3, V3, body_rate_from_rpy_rates, rotation_from_rpy};
+use crate::policies::directional::{DirectionalSearch, DsCommand, DsConfig, RescuerView};
 use crate::receiver_config::{ImuNoise, PulseNoise, ReceiverConfig};
 use crate::rescuer::{Wobble, wrap_pi};
 use crate::sog_replay::sog_config;
@@ -102,6 +96,12 @@ pub struct ClosedLoopConfig {
     /// a levelled-off σ_h at most half of it): the trade-off between steps and probe-point
     /// error (`rescue-report --probe-tradeoff`). `None`: the firmware's default.
     pub probe_radius_m: Option<f64>,
+    /// The directional search's settings (with [`Policy::DirectionalSearch`]).
+    pub ds: DsConfig,
+    /// The range the transmitter is drawn from (moment magnitude, on-time).
+    pub transmitter: TransmitterSpec,
+    /// A pulse is received only when |H| is at least this many σ_bkg (0: every pulse).
+    pub reception_snr: f64,
 }
 
 /// Where a closed-loop rescue starts.
@@ -143,6 +143,9 @@ impl ClosedLoopConfig {
             lift: true,
             lower: true,
             probe_radius_m: None,
+            ds: DsConfig::default(),
+            transmitter: TransmitterSpec::default(),
+            reception_snr: 3.0,
         }
     }
 }
@@ -365,7 +368,7 @@ pub(crate) fn draw_scenario(
     let depth: f64 = rng.random_range(0.3..=3.0);
     let tx = Transmitter::random(
         rng,
-        &TransmitterSpec::default(),
+        &cfg.transmitter,
         [d0 * bearing.cos(), d0 * bearing.sin(), -depth],
     );
     let mut heading = rng.random_range(-PI..PI);
@@ -662,7 +665,7 @@ pub fn run(
         &mut rng,
     );
     let primary = (cfg.start == StartMode::PrimarySearch).then_some(sc.heading);
-    let mut ds = Directional::default();
+    let mut ds = DirectionalSearch::new(cfg.ds);
     let mut first_rx: Option<(f64, V3, u64, f64)> = None;
     let mut pulses_at_probe = None;
     let tx_p = V3::from(sc.tx.position);
@@ -707,7 +710,7 @@ pub fn run(
             next_pulse += 1;
             let rot: M3 = rotation_from_rpy(&p1.rpy);
             if let Some(h_w) = sc.tx.field_at(&p1.p)
-                && h_w.norm() >= 3.0 * pulse_noise.sigma_bkg_a_per_m
+                && h_w.norm() >= cfg.reception_snr * pulse_noise.sigma_bkg_a_per_m
             {
                 if first_rx.is_none() {
                     first_rx = Some((centre, p1.p, next_pulse - 1, window.path_m));
@@ -722,7 +725,8 @@ pub fn run(
                 let h = Vec3::new(h_b.x as f32, h_b.y as f32, h_b.z as f32);
                 if cfg.policy == Policy::DirectionalSearch {
                     // Optimistic: the classical receiver's field in W, exactly rotated.
-                    ds.on_pulse(centre, &(rot * h_b), &h_w, &p1.p, &mut person);
+                    let cmd = ds.on_pulse(centre, &(rot * h_b), &h_w, &p1.p, &ds_view(&person));
+                    apply_ds(cmd, &mut person);
                 } else if let Some(d) = Some(rx.motion().clone().take_displacement(centre as f32))
                     && let Ok(display) = rx.on_pulse(centre as f32, &h, None)
                 {
@@ -781,7 +785,7 @@ pub fn run(
             }
         }
         if cfg.policy == Policy::DirectionalSearch {
-            if ds.done(&person) {
+            if ds.done(person.device_xy()) {
                 probe_t = Some(p1.t);
                 pulses_at_probe = Some(next_pulse);
                 break;
@@ -789,7 +793,7 @@ pub fn run(
             if first_rx.is_none() {
                 walk_primary(&mut person, primary, heading_err);
             } else {
-                ds.check_lost(p1.t, &mut person);
+                apply_ds(ds.check_lost(p1.t), &mut person);
             }
             heading_err =
                 ar * heading_err + (1.0 - ar * ar).sqrt() * sigma_heading * gauss(&mut rng);
@@ -834,7 +838,7 @@ pub fn run(
             .and_then(|_| rows.last().and_then(|r| r.victim_est))
             .map(V3::from),
         // The classical search's estimate is where it found the maximum.
-        Policy::DirectionalSearch => ds.found.map(|f| V3::new(f[0], f[1], tx_p.z)),
+        Policy::DirectionalSearch => ds.found().map(|f| V3::new(f[0], f[1], tx_p.z)),
     };
     let depth_shown_m = match cfg.policy {
         Policy::Receiver => probe_t.and(rx.display_model().depth_m.map(f64::from)),
@@ -888,217 +892,28 @@ pub(crate) fn walk_primary(person: &mut Person, heading: Option<f64>, heading_er
     }
 }
 
-/// Nominal beacon moment of the classical distance reading, A·m² (the geometric mean of
-/// the standard's 3e-3 … 3e-2).
-const DS_NOMINAL_MOMENT: f64 = 9.5e-3;
-/// The classical search's flux-line reversal distance, m (ICRA 2006 §II-A).
-const DS_FLIP_M: f64 = 5.0;
-/// Classical distance reading below which the cross search starts, m.
-const DS_FINE_M: f64 = 3.0;
-/// A reversal after a peak closer than this (classical reading) starts the cross search, m.
-const DS_PEAK_M: f64 = 8.0;
-/// Cross-search lines: (across the walking direction?, spacing m).
-const DS_LINES: [(bool, f64); 4] = [(false, 0.5), (true, 0.5), (false, 0.2), (true, 0.2)];
-/// Most points per cross-search line and direction.
-const DS_MAX_POINTS: u32 = 12;
-
-/// The classical distance reading: the range of a nominal beacon on its axis, m.
-fn classical_distance(h: f64) -> f64 {
-    (2.0 * DS_NOMINAL_MOMENT / (4.0 * PI * h.max(1e-30))).cbrt()
-}
-
-/// One line of the cross search.
-#[derive(Debug, Clone, Copy)]
-struct CrossLine {
-    /// Index into [`DS_LINES`].
-    line: usize,
-    /// Walking direction when the cross search started (north, west), unit.
-    forward: [f64; 2],
-    /// Centre of this line.
-    centre: [f64; 2],
-    /// Direction along the line (±1) and points taken in it.
-    sign: f64,
-    k: u32,
-    reversed: bool,
-    /// Consecutive points weaker than the best.
-    below: u32,
-    /// Strongest reading so far and where.
-    best_h: f64,
-    best_p: [f64; 2],
-    /// Where the next reading is taken (None: the centre, first).
-    target: [f64; 2],
-}
-
-impl CrossLine {
-    fn axis(&self) -> [f64; 2] {
-        let [x, y] = self.forward;
-        if DS_LINES[self.line].0 {
-            [-y, x]
-        } else {
-            [x, y]
+/// Applies a directional-search command to the rescuer.
+fn apply_ds(cmd: Option<DsCommand>, person: &mut Person) {
+    match cmd {
+        Some(DsCommand::Heading { psi, walk }) => {
+            person.psi_des = psi;
+            person.w_target = if walk { 1.0 } else { 0.0 };
         }
-    }
-
-    fn point(&self, k: u32) -> [f64; 2] {
-        let a = self.axis();
-        let d = self.sign * f64::from(k) * DS_LINES[self.line].1;
-        [self.centre[0] + a[0] * d, self.centre[1] + a[1] * d]
+        Some(DsCommand::MoveTo { xy, height }) => {
+            person.crawl_to = Some(xy);
+            if let Some(h) = height {
+                person.hold_height = h;
+            }
+        }
+        None => {}
     }
 }
 
-/// The classical directional search as the rescuer's policy (module docs).
-#[derive(Debug, Clone, Default)]
-struct Directional {
-    /// Flux-line walking direction (north, west), unit.
-    dir: Option<[f64; 2]>,
-    best_h: f64,
-    best_p: [f64; 2],
-    walked_since_best: f64,
-    last_p: Option<[f64; 2]>,
-    cross: Option<CrossLine>,
-    /// The strongest point of the last line, where the rescuer stops.
-    found: Option<[f64; 2]>,
-    /// Time of the last received pulse, s.
-    last_t: f64,
-    /// Turned back after losing the signal (until the next pulse).
-    turned_back: bool,
-}
-
-impl Directional {
-    /// A pulse `h` (A/m in W, sign arbitrary) received at `p`.
-    /// A pulse received at `p`: `h` is the reading (A/m in W, noisy, sign arbitrary),
-    /// `h_true` the field whose flux line the optimistic rescuer follows perfectly.
-    fn on_pulse(&mut self, t: f64, h: &V3, h_true: &V3, p: &V3, person: &mut Person) {
-        self.last_t = t;
-        self.turned_back = false;
-        if self.found.is_some() {
-            return;
-        }
-        let n = h.norm();
-        let here = [p.x, p.y];
-        if let Some(mut c) = self.cross {
-            // Cross search: a reading counts only with the receiver at the point.
-            let dev = person.device_xy();
-            if (dev[0] - c.target[0]).hypot(dev[1] - c.target[1]) > 0.01 {
-                return;
-            }
-            if n > c.best_h {
-                c.best_h = n;
-                c.best_p = c.target;
-                c.below = 0;
-            } else {
-                c.below += 1;
-            }
-            let line_done = if c.k == 0 {
-                false
-            } else if c.below >= 1 && c.k == 1 && !c.reversed {
-                // The first point is weaker: try the other side.
-                c.sign = -c.sign;
-                c.reversed = true;
-                c.k = 0;
-                false
-            } else {
-                (c.reversed && c.k == 1 && c.below >= 1) || c.below >= 2 || c.k >= DS_MAX_POINTS
-            };
-            if line_done {
-                if c.line + 1 == DS_LINES.len() {
-                    self.found = Some(c.best_p);
-                    person.crawl_to = Some(c.best_p);
-                    self.cross = Some(c);
-                    return;
-                }
-                c.line += 1;
-                c.centre = c.best_p;
-                c.sign = 1.0;
-                c.k = 0;
-                c.reversed = false;
-                c.below = 0;
-            }
-            c.k += 1;
-            c.target = c.point(c.k);
-            person.crawl_to = Some(c.target);
-            self.cross = Some(c);
-            return;
-        }
-        // Secondary search: follow the flux line, reverse when |H| stops growing.
-        let walked = self
-            .last_p
-            .map_or(0.0, |q| (here[0] - q[0]).hypot(here[1] - q[1]));
-        self.last_p = Some(here);
-        if n > self.best_h {
-            self.best_h = n;
-            self.best_p = here;
-            self.walked_since_best = 0.0;
-        } else {
-            self.walked_since_best += walked;
-            if self.walked_since_best > DS_FLIP_M {
-                if classical_distance(self.best_h) <= DS_PEAK_M {
-                    // Passed over the peak: back to the strongest reading, fine search.
-                    self.start_cross(self.best_p, person);
-                    return;
-                }
-                if let Some(d) = self.dir.as_mut() {
-                    *d = [-d[0], -d[1]];
-                }
-                self.best_h = n;
-                self.best_p = here;
-                self.walked_since_best = 0.0;
-            }
-        }
-        if classical_distance(n) <= DS_FINE_M {
-            self.start_cross(here, person);
-            return;
-        }
-        let reference = self.dir.unwrap_or([person.psi.cos(), person.psi.sin()]);
-        let hf = Vec3::new(h_true.x as f32, h_true.y as f32, h_true.z as f32);
-        let rf = [reference[0] as f32, reference[1] as f32];
-        if let Some(d) = firmware::guidance::flux_direction(&hf, &rf) {
-            let d = [f64::from(d[0]), f64::from(d[1])];
-            self.dir = Some(d);
-            person.psi_des = d[1].atan2(d[0]);
-            let off = wrap_pi(person.psi_des - person.psi).abs();
-            person.w_target = if off > 0.9 { 0.0 } else { 1.0 };
-        }
-    }
-
-    fn start_cross(&mut self, centre: [f64; 2], person: &mut Person) {
-        let forward = self.dir.unwrap_or([person.psi.cos(), person.psi.sin()]);
-        let c = CrossLine {
-            line: 0,
-            forward,
-            centre,
-            sign: 1.0,
-            k: 0,
-            reversed: false,
-            below: 0,
-            best_h: 0.0,
-            best_p: centre,
-            target: centre,
-        };
-        person.crawl_to = Some(centre);
-        person.hold_height = CROSS_HEIGHT_M;
-        self.cross = Some(c);
-    }
-
-    /// Signal lost for as long as the receiver's timeout in the secondary search: turn
-    /// back once (toward where it was last heard).
-    fn check_lost(&mut self, t: f64, person: &mut Person) {
-        if self.cross.is_none() && !self.turned_back && t - self.last_t > 3.5 {
-            self.turned_back = true;
-            if let Some(d) = self.dir.as_mut() {
-                *d = [-d[0], -d[1]];
-                person.psi_des = d[1].atan2(d[0]);
-                person.w_target = 0.0;
-            }
-        }
-    }
-
-    /// Whether the rescuer stands at the found maximum.
-    fn done(&self, person: &Person) -> bool {
-        self.found.is_some_and(|f| {
-            let d = person.device_xy();
-            (d[0] - f[0]).hypot(d[1] - f[1]) <= 0.01
-        })
+/// What the directional search sees of the rescuer.
+fn ds_view(person: &Person) -> RescuerView {
+    RescuerView {
+        device_xy: person.device_xy(),
+        heading: person.psi,
     }
 }
 

@@ -252,7 +252,8 @@ pub struct SogConfig {
     pub m_min: f32,
     /// Largest transmitter moment magnitude (A·m²).
     pub m_max: f32,
-    /// Shallowest burial depth below the snow surface (m).
+    /// Shallowest burial depth below the snow surface (m); negative for a transmitter
+    /// that may lie above it (a drone's receiver with the victim anywhere in a ball).
     pub depth_min: f32,
     /// Deepest burial depth below the snow surface (m).
     pub depth_max: f32,
@@ -444,7 +445,6 @@ impl SogConfig {
             && self.iekf_min_weight > 0.0
             && self.iekf_min_weight <= 1.0
             && self.m_max >= self.m_min
-            && self.depth_min >= 0.0
             && self.depth_max >= self.depth_min
             && self.receiver_height >= 0.0
             && self.sigma_bkg > 0.0

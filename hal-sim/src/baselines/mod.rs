@@ -21,6 +21,8 @@ use firmware::estimate::{Estimator, SogConfig};
 
 pub mod dr;
 pub mod lm;
+pub mod paper;
+mod plot;
 pub mod report;
 pub mod rls;
 

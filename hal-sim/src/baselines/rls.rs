@@ -27,8 +27,9 @@
 //! 1e-6 … 1e-9 for ρ = 0.3 s⁻¹), while enough past pulses keep weight for rank 10, and
 //! x̂ must follow the least-squares solution `−R⁻¹Q` within a pulse: ρ = 0.3 s⁻¹,
 //! γ = 1e8 (chosen on the synthetic walk of the tests, not on the report's scenarios).
-//! Positions enter Φ in units of [`LENGTH_UNIT_M`] so that the ten regressors are of
-//! comparable size (the normalization `1 + φᵀφ` is not scale-invariant).
+//! Positions enter Φ in units of [`RlsConfig::length_unit_m`] ([`LENGTH_UNIT_M`] here) so
+//! that the ten regressors are of comparable size (the normalization `1 + φᵀφ` is not
+//! scale-invariant); the paper's drone protocol ([`super::paper::drone`]) uses metres.
 use super::dr::{DeadReckoning, single_estimate, single_report};
 use crate::physics::{M3, V3};
 use firmware::estimate::{
@@ -41,7 +42,7 @@ use std::f64::consts::PI;
 pub type V10 = SVector<f64, 10>;
 type M10 = SMatrix<f64, 10, 10>;
 
-/// Positions in Φ are in units of this length, m.
+/// Positions in Φ are in units of this length in the common protocol, m.
 pub const LENGTH_UNIT_M: f64 = 10.0;
 
 /// `(a², b²)` of eq. 7 fitted by least squares to `(1 + 3c²)^(−1/3)` over `c = cos Θ`
@@ -136,6 +137,8 @@ pub struct RlsConfig {
     pub first_dt: f64,
     /// Saturation level of a field component, A/m.
     pub h_saturation: f64,
+    /// Positions enter Φ in units of this length, m.
+    pub length_unit_m: f64,
 }
 
 impl RlsConfig {
@@ -149,19 +152,22 @@ impl RlsConfig {
             kappa: 3.0,
             first_dt: 1.0,
             h_saturation: f64::from(c.h_saturation),
+            length_unit_m: LENGTH_UNIT_M,
         }
     }
 
-    /// The paper's simulation settings (ρ = 1, Γ = I·γ) with a known moment `m0`.
-    pub fn paper(m0: f64) -> Self {
+    /// The paper's simulation settings (ρ = 1, Γ = γ I, positions in metres) with a known
+    /// moment `m0`, adaptation gain `gamma` and Υ's tolerance `kappa`.
+    pub fn paper(m0: f64, gamma: f64, kappa: f64) -> Self {
         Self {
             ab2: fit_ab(),
             m0,
             rho: 1.0,
-            gamma: 1e4,
-            kappa: 3.0,
+            gamma,
+            kappa,
             first_dt: 0.0,
             h_saturation: 1.0,
+            length_unit_m: 1.0,
         }
     }
 
@@ -176,6 +182,7 @@ impl RlsConfig {
             self.kappa,
             self.first_dt,
             self.h_saturation,
+            self.length_unit_m,
         ];
         let ok = v.iter().all(|x| x.is_finite())
             && self.ab2.0 > 0.0
@@ -185,7 +192,8 @@ impl RlsConfig {
             && self.gamma > 0.0
             && self.kappa >= 1.0
             && self.first_dt >= 0.0
-            && self.h_saturation > 0.0;
+            && self.h_saturation > 0.0
+            && self.length_unit_m > 0.0;
         if ok {
             Ok(())
         } else {
@@ -193,10 +201,18 @@ impl RlsConfig {
         }
     }
 
-    /// Output `y` of eq. 15 for a measured |h| (in [`LENGTH_UNIT_M`]² units).
+    /// Output `y` of eq. 15 for a measured |h| (in [`Self::length_unit_m`]² units).
     pub fn y_of(&self, h_norm: f64) -> f64 {
         let (a2, b2) = self.ab2;
-        (self.m0 / (4.0 * PI * h_norm)).powf(2.0 / 3.0) * a2 * b2 / (LENGTH_UNIT_M * LENGTH_UNIT_M)
+        let u = self.length_unit_m;
+        (self.m0 / (4.0 * PI * h_norm)).powf(2.0 / 3.0) * a2 * b2 / (u * u)
+    }
+
+    /// Υ (Property 1) of `x` with this configuration's saturation, in metres.
+    pub fn position(&self, x: &V10) -> Option<V3> {
+        let (a2, b2) = self.ab2;
+        let k = self.kappa;
+        upsilon(x, a2.min(b2) / k, a2.max(b2) * k).map(|p| p * self.length_unit_m)
     }
 }
 
@@ -219,7 +235,8 @@ impl Default for RlsState {
 }
 
 impl RlsState {
-    /// Integrates eq. 20 over `dt` with `φ = Φ(p)` (p in [`LENGTH_UNIT_M`]) and `y` held.
+    /// Integrates eq. 20 over `dt` with `φ = Φ(p)` (p in [`RlsConfig::length_unit_m`]) and
+    /// `y` held.
     pub fn advance(&mut self, cfg: &RlsConfig, p: &V3, y: f64, dt: f64) -> Option<()> {
         let f = phi(p);
         let norm = 1.0 + f.norm_squared();
@@ -286,9 +303,7 @@ impl RlsIdentifier {
 
     /// The transmitter position (world, m) by Υ (Property 1).
     pub fn position(&self) -> Option<V3> {
-        let (a2, b2) = self.cfg.ab2;
-        let k = self.cfg.kappa;
-        upsilon(self.state.x(), a2.min(b2) / k, a2.max(b2) * k).map(|p| p * LENGTH_UNIT_M)
+        self.cfg.position(self.state.x())
     }
 }
 
@@ -305,7 +320,7 @@ impl Estimator for RlsIdentifier {
         let dt = self.dr.last().map_or(self.cfg.first_dt, |l| w.t - l.t);
         let y = self.cfg.y_of(w.h.norm());
         let mut next = self.state;
-        next.advance(&self.cfg, &(w.p / LENGTH_UNIT_M), y, dt)
+        next.advance(&self.cfg, &(w.p / self.cfg.length_unit_m), y, dt)
             .ok_or(EstimateError::NonFinite)?;
         self.state = next;
         self.dr.commit(w);
@@ -399,7 +414,7 @@ mod tests {
     /// ω₃ = ω₁/4, ρ = 1: x̂ converges and Υ gives the transmitter.
     #[test]
     fn identifier_converges_on_the_papers_exciting_trajectory() {
-        let cfg = RlsConfig::paper(0.01);
+        let cfg = RlsConfig::paper(0.01, 1e4, 3.0);
         let (a2, b2) = cfg.ab2;
         let pt = V3::new(1.5, -1.0, -0.8);
         let axis = V3::new(0.3, 0.8, -0.2);
@@ -414,8 +429,8 @@ mod tests {
                 2.0 * (w1 / 2.0 * t).sin(),
                 2.0 * (w1 / 4.0 * t).sin(),
             );
-            // |h| from eq. 8 with the true moment m0, in LENGTH_UNIT_M units.
-            let d = (pr - pt) * LENGTH_UNIT_M;
+            // |h| from eq. 8 with the true moment m0.
+            let d = pr - pt;
             let h = cfg.m0 / (4.0 * PI) * (a2 * b2 / d.dot(&(mb * d))).powf(1.5);
             st.advance(&cfg, &pr, cfg.y_of(h), dt).unwrap();
         }
