@@ -14,6 +14,8 @@
 //!   `R = Rz(yaw) Ry(pitch) Rx(roll)`).
 //! - [`dipole`]: the magnetic dipole field, its Jacobians, its inverse and the range
 //!   bounds implied by a field magnitude.
+//! - [`board`]: the reference board's profile (analog chain, ADC, IMU mounting,
+//!   capacities, defaults), read by the board binary and by `hal-sim`.
 //! - [`drivers`]: chip drivers generic over `embedded-hal` 1.0 (the antenna ADC).
 //! - [`frontend`]: antenna pulse DSP — detection, I/Q demodulation, field vector per
 //!   pulse, transmitter separation.
@@ -48,6 +50,7 @@
 )]
 
 pub mod app;
+pub mod board;
 pub mod classic;
 pub mod dipole;
 pub mod display;

@@ -73,6 +73,7 @@ fn dsp(counter: &mut InstructionCounter) -> (u64, u64, f32, bool) {
             gain_a_per_m_per_v: gain,
             offset_v: offset,
             phase_rad: phase,
+            ..Calibration::default()
         },
         ..FrontendConfig::default()
     };

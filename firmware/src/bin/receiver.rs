@@ -42,27 +42,22 @@ use embedded_graphics::pixelcolor::BinaryColor;
 use embedded_graphics::prelude::*;
 use embedded_hal_bus::i2c::RefCellDevice;
 use embedded_hal_bus::spi::ExclusiveDevice;
-use firmware::app::{AppConfig, Receiver, SearchMode};
-use firmware::drivers::ads131m04::{self, Ads131m04};
+use firmware::app::Receiver;
+use firmware::board::{self, BoardProfile};
+use firmware::drivers::ads131m04::Ads131m04;
 use firmware::drivers::imu::Imu;
-use firmware::frontend::{Frontend, FrontendConfig, PulseMeasurement};
+use firmware::frontend::{Frontend, PulseMeasurement};
 use firmware::timebase::{ClockEvent, SampleClock};
 use firmware::victims::MarkButton;
-use firmware::{Vec3, display, session_log};
+use firmware::{display, session_log};
 use heapless::spsc::{Consumer, Producer, Queue};
 use panic_probe as _;
 use ssd1306::{I2CDisplayInterface, Ssd1306, prelude::*};
 use stm32f4xx_hal::gpio::{Edge, ExtiPin, Input, PC7};
 use stm32f4xx_hal::{interrupt, pac, prelude::*, rcc::Config, spi};
 
-/// Local geomagnetic field in the geographic frame (north, west, up), µT, declination
-/// folded in: 48 µT at 63° inclination. Set it for the region the receiver is used in.
-const EARTH_FIELD_UT: [f32; 3] = [21.79, 0.0, -42.77];
-/// The user's calibrated step length (m), `None` until the calibration walk was done.
-const STEP_LENGTH_M: Option<f32> = None;
-/// How the receiver guides: the SOGs estimator per victim, or `SearchMode::Classic` for
-/// the classical directional search (flux line + bracketing, one transmitter).
-const SEARCH_MODE: SearchMode = SearchMode::Sog;
+/// The board this binary runs on: analog chain, ADC, IMU mounting and rates, defaults.
+const PROFILE: BoardProfile = board::REFERENCE;
 /// Longest time (s) the screen goes without a redraw when no pulse redraws it.
 const REDRAW_MAX_S: f32 = 1.0;
 /// ADC frames buffered between the DRDY interrupt and the main loop: 250 ms at 8 kSPS,
@@ -150,7 +145,7 @@ fn EXTI9_5() {
 }
 
 /// IMU sampling (and sample-clock watchdog) rate, Hz.
-const IMU_HZ: f32 = 100.0;
+const IMU_HZ: f32 = PROFILE.imu.rate_hz;
 
 /// Reacts to the sample clock's verdict: a stalled ADC's DRDY is re-armed by reading one
 /// frame (it stays low until the frame is read, so no further edge would come).
@@ -187,8 +182,8 @@ fn main() -> ! {
     let Ok(mut log) = dp.USART3.tx(gpiob.pb10, 921_600.bps(), &mut rcc) else {
         defmt::panic!("USART3 configuration refused");
     };
-    let earth = Vec3::new(EARTH_FIELD_UT[0], EARTH_FIELD_UT[1], EARTH_FIELD_UT[2]);
-    if session_log::write_header(&mut log, 100.0, &earth, true).is_err() {
+    let earth = PROFILE.default_earth_field();
+    if session_log::write_header(&mut log, PROFILE.imu.rate_hz, &earth, true).is_err() {
         defmt::warn!("session log: header not written");
     }
 
@@ -207,16 +202,17 @@ fn main() -> ! {
     let mut adc = Ads131m04::new(adc_spi, DrdyAsserted);
     let adc_ok = adc.reset(&mut delay).is_ok()
         && adc.check_id().is_ok()
-        && adc.configure(&ads131m04::Config::default()).is_ok();
+        && adc.configure(&PROFILE.adc.config).is_ok();
     if !adc_ok {
         defmt::error!("antenna ADC not answering: no pulses will be received");
     }
 
     // IMU and display share I2C1.
     let i2c = RefCell::new(dp.I2C1.i2c((gpiob.pb6, gpiob.pb7), 400.kHz(), &mut rcc));
-    let mut imu = match Imu::new(
+    let mut imu = match Imu::with_mounting(
         RefCellDevice::new(&i2c),
         RefCellDevice::new(&i2c),
+        PROFILE.imu.mounting,
         &mut delay,
     ) {
         Ok(imu) => Some(imu),
@@ -234,17 +230,15 @@ fn main() -> ! {
     let screen_ok = screen.init().is_ok();
 
     // The application in SRAM.
-    let cfg = AppConfig {
-        mode: SEARCH_MODE,
-        ..AppConfig::new(earth, STEP_LENGTH_M)
-    };
+    let cfg = PROFILE.app_config(earth, PROFILE.defaults.step_length_m);
     // SAFETY: the only reference ever taken to RECEIVER, here, once, before any interrupt
     // that could run is enabled; no interrupt touches it.
     let slot = unsafe { &mut *core::ptr::addr_of_mut!(RECEIVER) };
     let Ok(receiver) = Receiver::emplace(slot, cfg) else {
         defmt::panic!("default configuration refused");
     };
-    let fe_cfg = FrontendConfig::default();
+    // The nominal calibration of the design until the unit's bench calibration is stored.
+    let fe_cfg = PROFILE.frontend_config(&PROFILE.analog.nominal);
     let rate = fe_cfg.sample_rate_hz;
     let Ok(new_frontend) = Frontend::new(fe_cfg) else {
         defmt::panic!("front-end configuration refused");

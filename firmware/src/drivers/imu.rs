@@ -102,6 +102,23 @@ pub const LSM303AGR_MAG_TO_BODY: AxisMap = AxisMap {
     sign: [-1, 1, 1],
 };
 
+/// How both chips sit on a board: their axes → body axes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Mounting {
+    /// BMI160 axes → body axes.
+    pub acc_gyr: AxisMap,
+    /// LSM303AGR magnetometer axes → body axes.
+    pub mag: AxisMap,
+}
+
+impl Mounting {
+    /// The reference board's mounting ([`BMI160_TO_BODY`], [`LSM303AGR_MAG_TO_BODY`]).
+    pub const REFERENCE: Mounting = Mounting {
+        acc_gyr: BMI160_TO_BODY,
+        mag: LSM303AGR_MAG_TO_BODY,
+    };
+}
+
 /// Which chip an error concerns.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Chip {
@@ -167,6 +184,7 @@ impl<I2C: ErrorType> core::fmt::Debug for ImuInitError<I2C> {
 pub struct Imu<I2C: I2c> {
     acc_gyr: Bmi160<Bmi160I2c<I2C>>,
     mag: Lsm303agr<LsmI2c<I2C>, MagContinuous>,
+    mounting: Mounting,
 }
 
 fn bmi_err<E>(e: bmi160::Error<E>) -> ImuError<E> {
@@ -202,9 +220,20 @@ impl<I2C: I2c> Imu<I2C> {
     /// Checks both chips' IDs and configures them: BMI160 accelerometer and gyroscope in
     /// normal mode at ±8 g and ±500 °/s; LSM303AGR `init` (block data update), magnetometer
     /// high-resolution 100 Hz continuous. `delay` covers the start-up times (≈ 90 ms).
+    /// The chips sit as on the reference board ([`Mounting::REFERENCE`]).
     pub fn new<D: DelayNs>(
         i2c_acc_gyr: I2C,
         i2c_mag: I2C,
+        delay: &mut D,
+    ) -> Result<Self, ImuInitError<I2C>> {
+        Self::with_mounting(i2c_acc_gyr, i2c_mag, Mounting::REFERENCE, delay)
+    }
+
+    /// [`Self::new`] for chips mounted as `mounting` says (a board profile's).
+    pub fn with_mounting<D: DelayNs>(
+        i2c_acc_gyr: I2C,
+        i2c_mag: I2C,
+        mounting: Mounting,
         delay: &mut D,
     ) -> Result<Self, ImuInitError<I2C>> {
         let mut bmi = Bmi160::new_with_i2c(i2c_acc_gyr, SlaveAddr::default());
@@ -236,7 +265,11 @@ impl<I2C: I2c> Imu<I2C> {
             });
         }
         match lsm.into_mag_continuous() {
-            Ok(mag) => Ok(Imu { acc_gyr: bmi, mag }),
+            Ok(mag) => Ok(Imu {
+                acc_gyr: bmi,
+                mag,
+                mounting,
+            }),
             Err(e) => Err(ImuInitError {
                 error: lsm_err(e.error),
                 i2c_acc_gyr: bmi.destroy(),
@@ -284,9 +317,9 @@ impl<I2C: I2c> Imu<I2C> {
         let (mx, my, mz) = m.xyz_unscaled();
         let (a, g, m) = ([a.x, a.y, a.z], [g.x, g.y, g.z], [mx, my, mz]);
         Ok(ImuReading {
-            acc: BMI160_TO_BODY.to_body(scaled(a, ACC_LSB_M_S2)),
-            gyr: BMI160_TO_BODY.to_body(scaled(g, GYR_LSB_RAD_S)),
-            mag: LSM303AGR_MAG_TO_BODY.to_body(scaled(m, MAG_LSB_UT)),
+            acc: self.mounting.acc_gyr.to_body(scaled(a, ACC_LSB_M_S2)),
+            gyr: self.mounting.acc_gyr.to_body(scaled(g, GYR_LSB_RAD_S)),
+            mag: self.mounting.mag.to_body(scaled(m, MAG_LSB_UT)),
             clipped: at_full_scale(a) || at_full_scale(g) || at_full_scale(m),
         })
     }

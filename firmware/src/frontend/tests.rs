@@ -63,6 +63,7 @@ fn frontend() -> Frontend {
             gain_a_per_m_per_v: GAIN.map(|g| g as f32),
             offset_v: [0.0; 3],
             phase_rad: PHASE.map(|p| p as f32),
+            ..Calibration::default()
         },
         ..FrontendConfig::default()
     };

@@ -63,6 +63,7 @@ impl AnalogChain {
             gain_a_per_m_per_v: self.gain_a_per_m_per_v.map(|g| g as f32),
             offset_v: self.offset_v.map(|x| x as f32),
             phase_rad: self.phase_rad.map(|x| x as f32),
+            ..Calibration::default()
         }
     }
 }

@@ -20,7 +20,8 @@ use crate::scenario::{ScenarioConfig, Simulation, merge, simulate};
 use crate::sensors::{ImuModel, quantize, round_significant};
 use crate::session::{Imu, Pulse, Session};
 use anyhow::{Context, Result, anyhow};
-use firmware::drivers::ads131m04::{Ads131m04, Config, Error as AdcError};
+use firmware::board::REFERENCE;
+use firmware::drivers::ads131m04::{Ads131m04, Error as AdcError};
 use firmware::frontend::{Frontend, FrontendConfig, FrontendStats};
 
 /// Seed stream of the measurement-level IMU noise (see `scenario::simulate`).
@@ -57,7 +58,7 @@ pub fn simulate_bus(cfg: &ScenarioConfig, chain: &AnalogChain) -> Result<BusRun>
     let clock = SimClock::new();
 
     // Antenna ADC.
-    let adc_cfg = Config::default();
+    let adc_cfg = REFERENCE.adc.config;
     let fs = f64::from(adc_cfg.data_rate_hz(super::ads131m04::F_CLKIN_HZ as f32));
     let signal = IfSignal::new(
         world,
