@@ -32,19 +32,24 @@ pub const STRETCH_LIMIT: u32 = 200;
 
 /// A bus clear that succeeded.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Cleared {
     /// SCL pulses it took for the slave to release SDA (0: SDA was free).
     pub pulses: u8,
 }
 
 /// Why a bus clear failed.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum ClearError {
     /// SCL stays low: a slave stretches the clock without end (or SCL is shorted).
+    #[error("SCL held low (a slave stretching the clock without end, or a short)")]
     SclHeldLow,
     /// SDA is still low after 9 pulses and a STOP (or SDA is shorted).
+    #[error("SDA still low after 9 clock pulses and a STOP")]
     SdaHeldLow,
     /// A GPIO reported an error (or the pins could not be taken from the peripheral).
+    #[error("the bus pins could not be driven or taken from the peripheral")]
     Pin,
 }
 
@@ -122,6 +127,7 @@ pub trait Recoverable: I2c {
 
 /// Counts of the bus's troubles since boot (shown on the display and logged).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct BusStats {
     /// Transfers that failed (bus errors and refusals on a stuck bus).
     pub errors: u32,
@@ -134,12 +140,15 @@ pub struct BusStats {
 }
 
 /// A transfer's error on a guarded bus.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum GuardError<E> {
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum GuardError<E: core::fmt::Debug> {
     /// The bus's own error.
+    #[error("I2C error: {0:?}")]
     Bus(E),
     /// The lines were stuck before the transfer and a clear did not free them: nothing
     /// was sent.
+    #[error("I2C lines stuck and not freed: {0}")]
     Stuck(ClearError),
 }
 

@@ -131,16 +131,21 @@ const fn a(function: &'static str, pin: P, site: Site) -> Assignment {
 }
 
 /// What is wrong with a pin map.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum PinMapError {
     /// The site named does not exist on the Feather (the function concerned).
+    #[error("{0}: no such pin on the Feather")]
     UnknownSite(&'static str),
     /// The site exists but carries another MCU pin (the function concerned).
+    #[error("{0}: the Feather pin named carries another MCU pin")]
     WrongPin(&'static str),
     /// Two functions share one MCU pin (the second function).
+    #[error("{0}: MCU pin already used by another function")]
     Shared(&'static str),
     /// Two functions use the same EXTI line (the second function; EXTI lines are per pin
     /// number, whatever the port).
+    #[error("{0}: EXTI line already used by another interrupt pin")]
     SharedExti(&'static str),
 }
 
