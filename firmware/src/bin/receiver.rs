@@ -12,6 +12,7 @@
 //! | session-log stream (spec `arva-session` v1, 921 600 Bd) | USART3 TX | PB10 (TX) |
 //! | IMU sample clock (100 Hz) | TIM2 | – |
 //! | mark button (push button to ground, internal pull-up; polled at 100 Hz, debounced) | GPIO | PC6 (D6) |
+//! | battery voltage (the Feather's ½ divider on BAT, read once a second) | ADC1 IN3 | PA3 (on board) |
 //! | supervision: independent watchdog (1 s), cycle counter (progress times) | IWDG, DWT | – |
 //!
 //! The full pin map, checked against the Feather's pinout by unit tests, with the pins
@@ -25,7 +26,10 @@
 //! boot logs the record and shows it on the display for 3 s. The I2C bus is cleared at
 //! boot (a slave may still hold SDA from a transfer the reset cut), checked before every
 //! transfer and cleared and its devices re-initialised when stuck
-//! ([`firmware::board::i2c_bus`]). SPI transfers are clocked by the MCU (master) and
+//! ([`firmware::board::i2c_bus`]). A dead or failing ADC, a stuck bus or a failing IMU
+//! shows on the display as a fault over the status word (never as "NO SIGNAL") and is
+//! logged; the battery gauge and the low-battery warning sit in the bottom-left corner
+//! ([`firmware::board::health`]). SPI transfers are clocked by the MCU (master) and
 //! cannot wait on the ADC; a silent ADC shows as failed frames and a DRDY stall
 //! (`firmware::timebase`).
 //!
@@ -63,9 +67,10 @@ use embedded_hal_bus::i2c::RefCellDevice;
 use embedded_hal_bus::spi::ExclusiveDevice;
 use firmware::app::Receiver;
 use firmware::board::crash::{self, CrashKind, CrashRecord, LastReset};
+use firmware::board::health::{self, Battery, BatteryState, Fault, SensorHealth};
 use firmware::board::i2c_bus::{self, ClearError, Cleared, Guarded, Recoverable};
 use firmware::board::watchdog::{MonotonicMs, ProgressWatch, Verdict, Work};
-use firmware::board::{self, BoardProfile};
+use firmware::board::{self, BoardProfile, pins};
 use firmware::drivers::ads131m04::Ads131m04;
 use firmware::drivers::imu::Imu;
 use firmware::frontend::{Frontend, PulseMeasurement};
@@ -74,6 +79,8 @@ use firmware::victims::MarkButton;
 use firmware::{display, session_log};
 use heapless::spsc::{Consumer, Producer, Queue};
 use ssd1306::{I2CDisplayInterface, Ssd1306, prelude::*};
+use stm32f4xx_hal::adc::Adc;
+use stm32f4xx_hal::adc::config::{AdcConfig, SampleTime};
 use stm32f4xx_hal::gpio::{Edge, ExtiPin, Input, OpenDrain, Output, PB6, PB7, PC7};
 use stm32f4xx_hal::i2c::I2c;
 use stm32f4xx_hal::rcc::Rcc;
@@ -142,6 +149,8 @@ static SAMPLER: Mutex<RefCell<Option<Sampler>>> = Mutex::new(RefCell::new(None))
 /// ADC samples taken (the time base) and samples dropped (queue full or bus error).
 static SAMPLES: AtomicU32 = AtomicU32::new(0);
 static DROPPED: AtomicU32 = AtomicU32::new(0);
+/// ADC frames that failed (CRC or bus error), for the health monitor.
+static FRAME_ERRORS: AtomicU32 = AtomicU32::new(0);
 
 /// The application state in SRAM (not zeroed by the runtime: initialized with
 /// `Receiver::emplace` before use).
@@ -334,10 +343,13 @@ fn EXTI9_5() {
                 }
             }
             // A corrupted frame keeps the time base: the DSP sees a clipped zero sample.
-            Err(_) => Sample {
-                volts: [0.0; 3],
-                clipped: true,
-            },
+            Err(_) => {
+                FRAME_ERRORS.fetch_add(1, Ordering::Relaxed);
+                Sample {
+                    volts: [0.0; 3],
+                    clipped: true,
+                }
+            }
         };
         if s.queue.enqueue(sample).is_err() {
             DROPPED.fetch_add(1, Ordering::Relaxed);
@@ -350,7 +362,7 @@ const IMU_HZ: f32 = PROFILE.imu.rate_hz;
 
 /// Reacts to the sample clock's verdict: a stalled ADC's DRDY is re-armed by reading one
 /// frame (it stays low until the frame is read, so no further edge would come).
-fn watch_adc(event: ClockEvent) {
+fn watch_adc(event: ClockEvent) -> ClockEvent {
     match event {
         ClockEvent::Running => {}
         ClockEvent::Resumed => defmt::info!("antenna ADC delivering again"),
@@ -365,12 +377,21 @@ fn watch_adc(event: ClockEvent) {
             });
         }
     }
+    event
 }
 
-/// Clears `screen` and draws `model` on it; false if the display did not take it.
-fn show(screen: &mut Screen<'_>, model: &firmware::app::DisplayModel) -> bool {
+/// Clears `screen` and draws `model` with the health overlay (a sensor fault over the
+/// status word, the battery gauge) on it; false if the display did not take it.
+fn show(
+    screen: &mut Screen<'_>,
+    model: &firmware::app::DisplayModel,
+    fault: Option<Fault>,
+    battery: Option<BatteryState>,
+) -> bool {
     screen.clear(BinaryColor::Off).ok();
-    display::draw(model, screen).is_ok() && screen.flush().is_ok()
+    display::draw(model, screen).is_ok()
+        && health::draw_overlay(fault, battery, screen).is_ok()
+        && screen.flush().is_ok()
 }
 
 #[entry]
@@ -398,6 +419,13 @@ fn main() -> ! {
     let mut exti = dp.EXTI;
     let gpiob = dp.GPIOB.split(&mut rcc);
     let gpioc = dp.GPIOC.split(&mut rcc);
+    let gpioa = dp.GPIOA.split(&mut rcc);
+    // Battery: the Feather's ½ divider on PA3 (ADC1 channel 3), read once a second. The
+    // HAL calibrates VDDA from the factory VREFINT value, so the reading does not assume
+    // exactly 3.3 V.
+    let vbat_pin = gpioa.pa3.into_analog();
+    let mut mcu_adc = Adc::new(dp.ADC1, true, AdcConfig::default(), &mut rcc);
+    let vdda_v = mcu_adc.reference_voltage() as f32 / 1000.0;
 
     match last_reset {
         LastReset::Clean => {}
@@ -459,6 +487,10 @@ fn main() -> ! {
         rcc,
     }));
     let mut imu = imu_up(&bus, &mut delay);
+    let mut sensors = SensorHealth::new();
+    sensors.adc_boot(adc_ok);
+    sensors.imu_up(imu.is_some());
+    let mut battery = Battery::new();
     let mut screen: Screen<'_> = Ssd1306::new(
         I2CDisplayInterface::new(RefCellDevice::new(&bus)),
         DisplaySize128x64,
@@ -538,6 +570,14 @@ fn main() -> ! {
     let mut watch = ProgressWatch::new(PROGRESS_LIMIT_MS, ms_clock.now_ms(DWT::cycle_count()));
     let mut starving = false;
     let mut bus_stats = bus.borrow().stats();
+    let mut fault = sensors.fault();
+    if let Some(f) = fault {
+        defmt::error!("sensor fault at boot: {=str}", f.label());
+    }
+    // Ticks since the last one-second health window, and the counters at its start.
+    let mut window_ticks = 0u32;
+    let mut window_samples = SAMPLES.load(Ordering::Relaxed);
+    let mut window_errors = FRAME_ERRORS.load(Ordering::Relaxed);
     loop {
         while let Some(sample) = consumer.dequeue() {
             taken = taken.wrapping_add(1);
@@ -560,7 +600,7 @@ fn main() -> ! {
                     };
                     if let Some(model) = model.filter(|_| screen_ok) {
                         drawn_s = clock.now_s();
-                        if !show(&mut screen, &model) {
+                        if !show(&mut screen, &model, fault, battery.state()) {
                             defmt::warn!("display write failed");
                         }
                     }
@@ -572,7 +612,30 @@ fn main() -> ! {
         watch.progress(Work::Samples, ms_clock.now_ms(DWT::cycle_count()));
         if imu_tick.wait().is_ok() {
             watch.progress(Work::Ticks, ms_clock.now_ms(DWT::cycle_count()));
-            watch_adc(clock.tick(taken));
+            sensors.adc_tick(watch_adc(clock.tick(taken)));
+            window_ticks += 1;
+            if window_ticks >= IMU_HZ as u32 {
+                window_ticks = 0;
+                let (n, e) = (
+                    SAMPLES.load(Ordering::Relaxed),
+                    FRAME_ERRORS.load(Ordering::Relaxed),
+                );
+                sensors.adc_window(
+                    n.wrapping_sub(window_samples),
+                    e.wrapping_sub(window_errors),
+                );
+                (window_samples, window_errors) = (n, e);
+                let raw = mcu_adc.convert(&vbat_pin, SampleTime::Cycles_480);
+                let was_low = battery.state().is_some_and(|b| b.low);
+                let volts = health::battery_volts(raw, vdda_v, pins::BATTERY_DIVIDER);
+                if let Some(b) = battery.update(volts).filter(|b| b.low != was_low) {
+                    if b.low {
+                        defmt::warn!("battery low: {=f32} V", b.volts);
+                    } else {
+                        defmt::info!("battery no longer low: {=f32} V", b.volts);
+                    }
+                }
+            }
             // The mark button, polled at the IMU tick (debounced over 3 ticks).
             let mut redraw = false;
             if mark.poll() {
@@ -583,13 +646,29 @@ fn main() -> ! {
                 redraw = true;
             }
             let t = clock.now_s();
+            // A fault shows at once and is logged when it comes and goes.
+            sensors.bus_stuck(bus.borrow().stuck());
+            let now_fault = sensors.fault();
+            if now_fault != fault {
+                match now_fault {
+                    Some(f) => defmt::error!("sensor fault: {=str}", f.label()),
+                    None => defmt::info!("sensor fault cleared"),
+                }
+                fault = now_fault;
+                redraw = true;
+            }
             // Pulses redraw the screen; without them it is redrawn at least every
             // REDRAW_MAX_S, so that "NO SIGNAL" and the arrow to a silent victim (carried
             // over the walk) show. Not at every tick: a flush holds the shared I2C bus
             // ≈ 25 ms, two or three IMU ticks.
             if screen_ok && (redraw || t - drawn_s >= REDRAW_MAX_S) {
                 drawn_s = t;
-                if !show(&mut screen, &receiver.display_model()) {
+                if !show(
+                    &mut screen,
+                    &receiver.display_model(),
+                    fault,
+                    battery.state(),
+                ) {
                     defmt::warn!("display write failed");
                 }
             }
@@ -608,8 +687,12 @@ fn main() -> ! {
                         if receiver.on_imu(t, &r.acc, &r.gyr, Some(&r.mag)).is_err() {
                             defmt::warn!("IMU sample refused");
                         }
+                        sensors.imu_read(true);
                     }
-                    Err(_) => defmt::warn!("IMU read failed"),
+                    Err(_) => {
+                        defmt::warn!("IMU read failed");
+                        sensors.imu_read(false);
+                    }
                 }
             }
             // A bus clear may have reset the devices or left them half-configured:
@@ -627,6 +710,7 @@ fn main() -> ! {
             }
             if bus.borrow_mut().take_reinit() {
                 imu = imu_up(&bus, &mut delay);
+                sensors.imu_up(imu.is_some());
                 screen_ok = screen.init().is_ok();
                 defmt::warn!("I2C devices re-initialised (display {=bool})", screen_ok);
             }

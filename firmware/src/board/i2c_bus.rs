@@ -169,6 +169,8 @@ pub struct Guarded<B> {
     errors_in_row: u8,
     reinit_devices: bool,
     last_clear: Option<Result<Cleared, ClearError>>,
+    /// A clear failed and no transfer has succeeded since.
+    stuck: bool,
 }
 
 impl<B: Recoverable> Guarded<B> {
@@ -184,7 +186,14 @@ impl<B: Recoverable> Guarded<B> {
             errors_in_row: 0,
             reinit_devices: false,
             last_clear: None,
+            stuck: false,
         }
+    }
+
+    /// Whether the bus is stuck: a clear failed and no transfer has succeeded since (a
+    /// sensor fault: the devices on it are unreachable).
+    pub fn stuck(&self) -> bool {
+        self.stuck
     }
 
     /// The counts since boot.
@@ -212,7 +221,10 @@ impl<B: Recoverable> Guarded<B> {
         let r = self.bus.clear_and_reinit();
         match r {
             Ok(_) => self.stats.recoveries += 1,
-            Err(_) => self.stats.failed_recoveries += 1,
+            Err(_) => {
+                self.stats.failed_recoveries += 1;
+                self.stuck = true;
+            }
         }
         self.last_clear = Some(r);
         self.reinit_devices = true;
@@ -243,6 +255,7 @@ impl<B: Recoverable> Guarded<B> {
         match f(&mut self.bus) {
             Ok(v) => {
                 self.errors_in_row = 0;
+                self.stuck = false;
                 Ok(v)
             }
             Err(e) => {
@@ -473,6 +486,7 @@ mod tests {
             }
         );
         assert_eq!(g.last_clear(), Some(Ok(Cleared { pulses: 2 })));
+        assert!(!g.stuck());
         assert!(g.take_reinit());
         assert!(!g.take_reinit(), "the flag is taken once");
         g.bus.done();
@@ -499,6 +513,23 @@ mod tests {
             (s.errors, s.stuck, s.recoveries, s.failed_recoveries),
             (1, 1, 0, 1)
         );
+        assert!(g.stuck(), "a failed clear leaves the bus stuck");
+        g.bus.done();
+    }
+
+    #[test]
+    fn a_stuck_bus_is_stuck_until_a_transfer_succeeds() {
+        let mut g = Guarded::new(MockBus {
+            i2c: I2cMock::new(&[I2cT::write(0x3C, vec![0x00, 0xAF])]),
+            scl: PinMock::new(&scl_script(9)),
+            sda: PinMock::new(&sda_script(9, State::Low)),
+            idle: vec![false, true],
+        });
+        assert!(g.write(0x3C, &[0x00, 0xAF]).is_err());
+        assert!(g.stuck());
+        // The slave let go by itself: the next transfer finds the lines idle.
+        assert_eq!(g.write(0x3C, &[0x00, 0xAF]), Ok(()));
+        assert!(!g.stuck());
         g.bus.done();
     }
 
