@@ -12,6 +12,7 @@
 //! | session-log stream (spec `arva-session` v1, 921 600 Bd) | USART3 TX | PB10 (TX) |
 //! | IMU sample clock (100 Hz) | TIM2 | – |
 //! | mark button (push button to ground, internal pull-up; polled at 100 Hz, debounced) | GPIO | PC6 (D6) |
+//! | fault LED (the Feather's red LED): lit while a sensor fault holds or the display is down | GPIO | PC1 (D13) |
 //! | battery voltage (the Feather's ½ divider on BAT, read once a second) | ADC1 IN3 | PA3 (on board) |
 //! | supervision: independent watchdog (1 s), cycle counter (progress times) | IWDG, DWT | – |
 //!
@@ -491,6 +492,8 @@ fn main() -> ! {
     sensors.adc_boot(adc_ok);
     sensors.imu_up(imu.is_some());
     let mut battery = Battery::new();
+    // The red LED tells of a fault even when the display is what failed.
+    let mut fault_led = gpioc.pc1.into_push_pull_output();
     let mut screen: Screen<'_> = Ssd1306::new(
         I2CDisplayInterface::new(RefCellDevice::new(&bus)),
         DisplaySize128x64,
@@ -574,6 +577,7 @@ fn main() -> ! {
     if let Some(f) = fault {
         defmt::error!("sensor fault at boot: {=str}", f.label());
     }
+    fault_led.set_state((fault.is_some() || !screen_ok).into());
     // Ticks since the last one-second health window, and the counters at its start.
     let mut window_ticks = 0u32;
     let mut window_samples = SAMPLES.load(Ordering::Relaxed);
@@ -657,6 +661,7 @@ fn main() -> ! {
                 fault = now_fault;
                 redraw = true;
             }
+            fault_led.set_state((fault.is_some() || !screen_ok).into());
             // Pulses redraw the screen; without them it is redrawn at least every
             // REDRAW_MAX_S, so that "NO SIGNAL" and the arrow to a silent victim (carried
             // over the walk) show. Not at every tick: a flush holds the shared I2C bus

@@ -16,10 +16,12 @@
 //!   transfer left them half-configured).
 //!
 //! A slave that holds SCL low for good (clock stretching without end) cannot be clocked
-//! free: [`ClearError::SclHeldLow`]. A transfer that hangs inside the HAL after its start
-//! (SCL stretched mid-byte) is not bounded here; the progress-checked watchdog
-//! ([`super::watchdog`]) resets the board and the boot clears the bus before
-//! initialising it.
+//! free: [`ClearError::SclHeldLow`]. A transfer that hangs inside the HAL after the
+//! idle check is not bounded here: on an idle bus the master's own START, address and data
+//! complete by themselves, so such a hang needs a slave holding SCL low — which no clear
+//! cures either. The progress-checked watchdog ([`super::watchdog`]) resets the board
+//! then; at the next boot the idle check finds SCL low and the guard refuses transfers
+//! (an I2C fault, not a hang).
 
 use embedded_hal::delay::DelayNs;
 use embedded_hal::digital::{InputPin, OutputPin};

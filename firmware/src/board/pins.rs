@@ -19,11 +19,12 @@
 //! | IMU and display: SDA | SDA | PB7 | I2C1, also STEMMA QT |
 //! | session-log stream, 921 600 Bd | TX | PB10 | USART3 TX |
 //! | mark button (to ground, internal pull-up) | D6 | PC6 | GPIO input |
+//! | fault LED: the Feather's red LED, lit while a sensor fault holds (seen even when the display is the fault) | D13 | PC1 | GPIO output |
 //! | battery voltage, ½ of BAT through the Feather's 2 × 100 kΩ divider | — (on board) | PA3 | ADC1 IN3 |
 //! | buzzer (reserved, not driven by this build) | D9 | PB8 | TIM4 CH3 (AF2) |
 //! | second button (reserved, not read by this build) | D12 | PC2 | GPIO input |
 //!
-//! Not used and kept free: D13/PC1 (the Feather's red LED), D8/PC0 (NeoPixel), the 2 MB
+//! Not used and kept free: D8/PC0 (NeoPixel), the 2 MB
 //! SPI flash (PB3/PB4/PB5, CS PA15), the microSD slot on SDIO (PC8–PC12, PD2; card detect
 //! **PB12**, which is why the ADC's chip select is not there: PB12 is not on the header).
 
@@ -94,7 +95,7 @@ pub const FEATHER_ON_BOARD: [(&str, P); 13] = [
 ];
 
 /// The receiver's pins (the module table; the board binary binds exactly these).
-pub const ASSIGNMENTS: [Assignment; 12] = [
+pub const ASSIGNMENTS: [Assignment; 13] = [
     a("antenna ADC SCK", P('B', 13), Site::Header("SCK")),
     a("antenna ADC MISO", P('B', 14), Site::Header("MISO")),
     a("antenna ADC MOSI", P('B', 15), Site::Header("MOSI")),
@@ -104,6 +105,7 @@ pub const ASSIGNMENTS: [Assignment; 12] = [
     a("I2C1 SDA", I2C_SDA, Site::Header("SDA")),
     a("session log TX", P('B', 10), Site::Header("TX")),
     a("mark button", P('C', 6), Site::Header("D6")),
+    a("fault LED", FAULT_LED, Site::Header("D13")),
     a("battery divider", BATTERY, Site::OnBoard("V_DIV")),
     a("buzzer (reserved)", P('B', 8), Site::Header("D9")),
     a("second button (reserved)", P('C', 2), Site::Header("D12")),
@@ -117,6 +119,8 @@ pub const ADC_DRDY: P = P('C', 7);
 pub const I2C_SCL: P = P('B', 6);
 /// The shared I2C bus's data (SDA).
 pub const I2C_SDA: P = P('B', 7);
+/// The fault LED (the Feather's red LED on D13).
+pub const FAULT_LED: P = P('C', 1);
 /// The battery divider's tap (ADC1 channel 3).
 pub const BATTERY: P = P('A', 3);
 /// The battery divider's ratio: BAT = ratio × V(PA3) (two 100 kΩ resistors).
