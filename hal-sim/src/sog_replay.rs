@@ -250,3 +250,83 @@ impl SogReplay {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn replay() -> SogReplay {
+        let header = Header::new(100.0, [21.0, 0.0, -42.0], true);
+        SogReplay::new(&header, &ReceiverConfig::default()).unwrap()
+    }
+
+    /// One second standing still, level, facing north.
+    fn stand(r: &mut SogReplay, t0: f64, mag: Option<[f64; 3]>) {
+        for k in 0..100 {
+            r.on_imu(&Imu {
+                t: t0 + f64::from(k) * 0.01,
+                acc: [0.0, 0.0, 9.80665],
+                gyr: [0.0; 3],
+                mag,
+            });
+        }
+    }
+
+    #[test]
+    fn a_repeated_pulse_record_is_processed_once() {
+        let mut r = replay();
+        stand(&mut r, 0.0, Some([21.0, 0.0, -42.0]));
+        let p = Pulse {
+            t: 0.995,
+            h: [2e-4, 5e-5, -1e-4],
+            src: None,
+        };
+        let first = r.on_pulse(&p);
+        let pulses = r.receiver().display_model().pulses;
+        for _ in 0..5 {
+            let again = r.on_pulse(&p);
+            assert_eq!(again.status.as_deref(), Some("duplicate"));
+            assert_eq!(again.victims, first.victims);
+        }
+        assert_eq!(r.receiver().display_model().pulses, pulses);
+        assert_eq!(r.duplicates, 5);
+        // Another field at the same time is not a repeat.
+        let other = Pulse {
+            h: [1e-4, 5e-5, -1e-4],
+            ..p
+        };
+        assert_ne!(r.on_pulse(&other).status.as_deref(), Some("duplicate"));
+    }
+
+    #[test]
+    fn a_saturated_magnetometer_drops_only_the_heading_aid() {
+        let mut r = replay();
+        stand(&mut r, 0.0, Some([21.0, 0.0, -42.0]));
+        stand(&mut r, 1.0, Some([5000.0, 0.0, -42.0]));
+        assert_eq!(r.receiver().stats().imu_refused, 0, "acc and gyro kept");
+        assert_eq!(r.mag_saturated, 100);
+        let refusals = r.refusals();
+        assert!(
+            refusals
+                .iter()
+                .any(|(why, n)| why.contains("full scale") && *n == 100)
+        );
+    }
+
+    #[test]
+    fn sources_beyond_255_stay_apart() {
+        let mut r = replay();
+        assert_eq!(r.track(None), None);
+        let a = r.track(Some(300));
+        let b = r.track(Some(1 << 31));
+        assert_ne!(a, b);
+        assert_eq!(r.track(Some(300)), a);
+        assert_eq!(r.track(Some(0)), Some(2));
+        for s in 1000..1300 {
+            let _ = r.track(Some(s));
+        }
+        assert_eq!(r.sources.len(), 255);
+        assert!(r.sources_overflow > 0);
+        assert_eq!(r.track(Some(300)), a, "a known source keeps its id");
+    }
+}
