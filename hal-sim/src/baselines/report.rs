@@ -186,6 +186,7 @@ pub fn markdown(args: &Args, all: &[MethodRuns]) -> String {
         args.seed,
         args.out.display()
     );
+    s.push_str("This one command regenerates every table and plot below: first every method under one common protocol, then each baseline under its own paper's protocol beside the paper's numbers (`--no-paper-protocols` leaves the second part out).\n\n");
     s.push_str(
         "Scenarios: the `accuracy` report's calibrated open-loop case (the papers' protocol: the rescuer starts 40–70 m from the victim and walks the `paper` path at ≈ 1 m/s, one pulse per transmitter period, random transmitter position, depth, orientation and power; pulses with the noise of ICRA eq. 10 and a random sign), the same seeds for every method. Every open-loop method gets exactly the SOGs filter's inputs from `accuracy::run_open_loop_with`: the dead-reckoned displacement between pulses (true displacement with the calibrated step length's scale error and per-step noise) and the noisy absolute attitude. Methods that guide the rescuer also run closed loop with the `rescue-report` rescuer (same seeds, its own scenario draw under the same protocol): the SOGs filter inside the firmware's application, and the classical directional search as the rescuer's policy.\n\n",
     );
@@ -344,6 +345,18 @@ pub fn generate(args: &Args) -> Result<String> {
     let mut md = markdown(args, &all);
     if !args.no_paper_protocols {
         md.push_str("\n## Each baseline under its own paper's protocol\n\n");
+        md.push_str(&super::paper::search::ds_section(args.seed, args.runs)?);
+        let rbpf: Option<Vec<Option<f64>>> = all
+            .iter()
+            .find(|r| r.method == Method::Rbpf)
+            .map(final_errors);
+        md.push('\n');
+        md.push_str(&super::paper::search::iros_section(
+            args.seed,
+            args.runs,
+            rbpf.as_deref(),
+        ));
+        md.push('\n');
         let (drone, _) = super::paper::report::drone_section(args.seed, args.runs, &args.out)?;
         md.push_str(&drone);
     }

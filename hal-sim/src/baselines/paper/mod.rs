@@ -2,3 +2,4 @@
 //! set-up rebuilt as the paper describes it, beside the paper's numbers.
 pub mod drone;
 pub mod report;
+pub mod search;
