@@ -14,6 +14,8 @@ use crate::scenario::{Preset, ScenarioConfig};
 use crate::session::{Record, Session};
 use anyhow::{Context, Result};
 use firmware::Vec3;
+use firmware::board::{IfRange, REFERENCE};
+use firmware::drivers::ads131m04::Gain;
 use firmware::motion::{Motion, MotionConfig};
 use rayon::prelude::*;
 use std::fmt::Write as _;
@@ -352,7 +354,11 @@ pub fn render(args: &Args, walks: &[WalkResult], papers: &[PaperResult], wall_s:
     }
     let _ = writeln!(
         s,
-        "\nThe DSP detects a pulse once the 32 ms window's energy exceeds 1.8× the noise floor, i.e. from about 9 σ_bkg; the measurement level emits pulses from 3 σ_bkg (`detect_factor`), so the measurement level hears a far beacon earlier than the firmware would. Pulses the DSP flags as saturated (ADC full scale ≈ 2.4e-3 A/m with the simulated analog chain at PGA gain 1) or overlapping give no record.\n"
+        "\nThe DSP detects a pulse once the 32 ms window's energy exceeds 1.8× the noise floor, i.e. from about 9 σ_bkg; the measurement level emits pulses from 3 σ_bkg (`detect_factor`), so the measurement level hears a far beacon earlier than the firmware would. Pulses the DSP flags as saturated (ADC full scale ≈ {:.1e} A/m at PGA gain 1 in the high range) or overlapping give no record.\n\nEach seed runs its own unit (`hal_sim::bus::run::scenario_unit`): coil gain, phase, offset drawn about the board profile's nominal values with its tolerances (`firmware::board::REFERENCE`, 1 σ: gain {:.0} %, phase {:.0}°, offset {:.0} mV). The DSP holds the profile's nominal calibration (an uncalibrated unit), never the unit's exact values.\n",
+        REFERENCE.full_scale_a_per_m(0, Gain::G1, IfRange::High),
+        100.0 * REFERENCE.tolerances.coil_gain_rel,
+        REFERENCE.tolerances.coil_phase_rad.to_degrees(),
+        1e3 * REFERENCE.tolerances.adc_offset_v,
     );
     // Replay.
     let me: Vec<f64> = papers.iter().filter_map(|p| p.measurement_error).collect();

@@ -12,7 +12,8 @@
 //!   each vector with its largest component positive, so the log is always
 //!   sign-ambiguous.
 use super::ads131m04::ads131m04;
-use super::if_signal::{AnalogChain, IfSignal};
+use super::if_signal::IfSignal;
+use super::unit::Unit;
 use super::imu::{ImuBus, ImuSampler};
 use super::{NoDelay, SimClock};
 use crate::physics::V3;
@@ -22,13 +23,21 @@ use crate::session::{Imu, Pulse, Session};
 use anyhow::{Context, Result, anyhow};
 use firmware::board::REFERENCE;
 use firmware::drivers::ads131m04::{Ads131m04, Error as AdcError};
-use firmware::frontend::{Frontend, FrontendConfig, FrontendStats};
+use firmware::frontend::{Calibration, Frontend, FrontendStats};
 
 /// Seed stream of the measurement-level IMU noise (see `scenario::simulate`).
 const IMU_STREAM: u64 = 2;
 /// Mixed into the scenario seed for the antenna's noise (kept apart from the scenario's
 /// own streams).
 const ANTENNA_SEED: u64 = 0xA27E_77A0_5EED_0005;
+/// Mixed into the scenario seed for the unit's drawn parameters.
+const UNIT_SEED: u64 = 0x0B0A_2D00_5EED_0001;
+
+/// The unit the bus-level simulation of scenario seed `seed` runs: drawn about the
+/// reference board's nominal values with its tolerances.
+pub fn scenario_unit(seed: u64) -> Unit {
+    Unit::draw(&REFERENCE, seed ^ UNIT_SEED)
+}
 
 /// A bus-level simulation and what it is compared with.
 #[derive(Debug, Clone)]
@@ -48,9 +57,9 @@ pub struct BusRun {
 
 use crate::scenario::stream;
 
-/// Runs the scenario of `cfg` through the emulated chips and the firmware's drivers and DSP
-/// behind the analog chain `chain`.
-pub fn simulate_bus(cfg: &ScenarioConfig, chain: &AnalogChain) -> Result<BusRun> {
+/// Runs the scenario of `cfg` through the emulated chips of `unit` and the firmware's
+/// drivers and DSP, the DSP holding the calibration `cal` (what the unit knows of itself).
+pub fn simulate_bus(cfg: &ScenarioConfig, unit: &Unit, cal: &Calibration) -> Result<BusRun> {
     let mut sim = simulate(cfg);
     let measurement = sim.session.clone();
     let world = &sim.world;
@@ -62,7 +71,7 @@ pub fn simulate_bus(cfg: &ScenarioConfig, chain: &AnalogChain) -> Result<BusRun>
     let fs = f64::from(adc_cfg.data_rate_hz(super::ads131m04::F_CLKIN_HZ as f32));
     let signal = IfSignal::new(
         world,
-        *chain,
+        unit.chain,
         cfg.sensors.pulse.sigma_bkg_a_per_m,
         cfg.sensors.pulse.k_sen,
         fs,
@@ -76,11 +85,7 @@ pub fn simulate_bus(cfg: &ScenarioConfig, chain: &AnalogChain) -> Result<BusRun>
     adc.configure(&adc_cfg)
         .map_err(|e| anyhow!("ADC configure: {e:?}"))?;
     adc.set_drdy_poll_limit(1);
-    let mut frontend = Frontend::new(FrontendConfig {
-        sample_rate_hz: fs as f32,
-        calibration: chain.calibration(),
-        ..FrontendConfig::default()
-    })
+    let mut frontend = Frontend::new(REFERENCE.frontend_config(cal))
     .map_err(|e| anyhow!("frontend configuration: {e:?}"))?;
 
     // IMU chips.
@@ -282,8 +287,9 @@ pub fn compare_pulses(run: &BusRun, sigma_bkg: f64, k_sen: f64) -> PulseComparis
     }
 }
 
-/// The bus-level simulation of `cfg` with the default analog chain, with context on error.
+/// The bus-level simulation of `cfg` on the scenario's drawn unit ([`scenario_unit`])
+/// holding the profile's nominal calibration (an uncalibrated unit), with context on error.
 pub fn simulate_bus_default(cfg: &ScenarioConfig) -> Result<BusRun> {
-    simulate_bus(cfg, &AnalogChain::default())
+    simulate_bus(cfg, &scenario_unit(cfg.seed), &REFERENCE.analog.nominal)
         .with_context(|| format!("bus-level simulation of {:?} seed {}", cfg.preset, cfg.seed))
 }
