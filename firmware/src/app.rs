@@ -62,19 +62,26 @@ const SWITCH_RATIO: f32 = 0.6;
 const SWITCH_MIN_M: f32 = 8.0;
 
 /// Why an input was refused (the receiver's state is then unchanged).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum AppError {
     /// The IMU sample was refused by the motion pipeline.
+    #[error("IMU sample refused: {0}")]
     Motion(MotionError),
     /// The pulse was refused by the estimator.
+    #[error("pulse refused by the estimator: {0}")]
     Estimate(EstimateError),
     /// The ADC sample was refused by the front end.
+    #[error("ADC sample refused: {0}")]
     Frontend(FrontendError),
     /// A time or vector was NaN or infinite.
+    #[error("time or vector NaN or infinite")]
     NonFinite,
     /// Mark pressed with no victim being guided to.
+    #[error("mark pressed with no victim guided to")]
     NoTarget,
     /// The pulse or configuration was refused by the classic mode.
+    #[error("refused by the classic mode: {0}")]
     Classic(ClassicError),
 }
 

@@ -156,19 +156,26 @@ impl ClassicConfig {
 }
 
 /// Why an input was refused (the state is unchanged).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum ClassicError {
     /// A non-finite configuration value, or one not positive.
+    #[error("configuration value not finite or not positive")]
     BadConfig,
     /// Non-finite pulse, attitude or walk.
+    #[error("pulse, attitude or walk not finite")]
     NonFinite,
     /// The field vector is zero: no direction, no distance.
+    #[error("zero field vector")]
     ZeroField,
     /// The pulse time is before the previous pulse's.
+    #[error("pulse time before the previous pulse")]
     TimeNotIncreasing,
     /// A negative walked distance.
+    #[error("negative walked distance")]
     NegativeWalk,
     /// A walked distance above [`MAX_WALK_M`].
+    #[error("walked distance above the plausible maximum")]
     ImplausibleWalk,
 }
 

@@ -19,13 +19,17 @@ use core::f32::consts::PI;
 pub const MIN_RANGE_M: f32 = 0.05;
 
 /// Why a dipole computation was refused.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum DipoleError {
     /// The range is below [`MIN_RANGE_M`].
+    #[error("range below the dipole model's minimum")]
     TooClose,
     /// An input was NaN or infinite.
+    #[error("an input was NaN or infinite")]
     NonFinite,
     /// A magnitude that must be positive (field, moment bound) was zero or negative.
+    #[error("a magnitude that must be positive was zero or negative")]
     NonPositive,
 }
 

@@ -13,12 +13,15 @@ use crate::Vec3;
 use core::fmt::Write;
 
 /// Why a record was not written.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum LogError {
     /// A value was NaN or infinite; nothing was written.
+    #[error("value NaN or infinite: nothing written")]
     NonFinite,
     /// The underlying writer failed (the line may be incomplete: readers tolerate a torn
     /// last line).
+    #[error("the log writer failed")]
     Write,
 }
 

@@ -33,9 +33,11 @@ pub enum ClockEvent {
 }
 
 /// Why a clock could not be made.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum ClockError {
     /// A rate was not finite and positive, or the tick is not slower than a sample.
+    #[error("rate not finite and positive, or tick not slower than a sample")]
     BadRate,
 }
 

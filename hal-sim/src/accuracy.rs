@@ -1186,8 +1186,8 @@ fn paired_line(sog: &[RunResult], oracle: &[RunResult]) -> String {
 /// Options of `hal-sim accuracy`.
 #[derive(clap::Args, Debug, Clone)]
 pub struct Args {
-    /// Seeded tries per case (seeds `first_seed..first_seed + tries`).
-    #[arg(long, default_value_t = 100)]
+    /// Seeded tries per case (seeds `first_seed..first_seed + tries`), at least 1.
+    #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u64).range(1..))]
     pub tries: u64,
     /// First seed (1 for the checked-in report; another range validates it).
     #[arg(long, default_value_t = 1)]

@@ -34,7 +34,7 @@ pub struct Args {
     pub out: Option<PathBuf>,
     /// Several buried victims (2–4, see `multi-report`): the simulated rescuer presses
     /// the mark key ("M") at each "probe here" and moves on to the next victim.
-    #[arg(long)]
+    #[arg(long, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(2..=4))]
     pub victims: Option<usize>,
     /// Layout of the victims with `--victims`.
     #[arg(long, value_enum, default_value_t = crate::multi::Layout::ClosePairOverlap)]

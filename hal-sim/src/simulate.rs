@@ -47,8 +47,8 @@ pub struct Args {
     #[arg(long)]
     pub gyr_bias_max: Option<f64>,
     /// Transmitter moment range MIN,MAX in A·m² (default 3e-3,3e-2).
-    #[arg(long, num_args = 2, value_delimiter = ',')]
-    pub moment_range: Option<Vec<f64>>,
+    #[arg(long, value_parser = parse_moment_range)]
+    pub moment_range: Option<[f64; 2]>,
     /// Bus level: generate the log through emulated chips (ADS131M04 antenna ADC, BMI160
     /// and LSM303AGR IMU) read by the firmware's drivers, and the firmware's pulse DSP,
     /// instead of the measurement-level sensor models. Pulses are then always
@@ -78,13 +78,28 @@ impl Args {
         if let Some(x) = self.gyr_bias_max {
             c.sensors.imu.gyr_bias_max_rad_s = x;
         }
-        if let Some(r) = &self.moment_range
-            && r.len() == 2
-        {
-            c.transmitter.moment_range = [r[0], r[1]];
+        if let Some(r) = self.moment_range {
+            c.transmitter.moment_range = r;
         }
         c
     }
+}
+
+/// `--moment-range MIN,MAX`: two finite moments, 0 < MIN ≤ MAX (A·m²).
+fn parse_moment_range(s: &str) -> Result<[f64; 2], String> {
+    let (min, max) = s
+        .split_once(',')
+        .ok_or_else(|| format!("expected MIN,MAX in A·m², got {s:?}"))?;
+    let parse = |v: &str| {
+        v.trim()
+            .parse::<f64>()
+            .map_err(|e| format!("{v:?} is not a number: {e}"))
+    };
+    let (min, max) = (parse(min)?, parse(max)?);
+    if !(min.is_finite() && max.is_finite() && min > 0.0 && min <= max) {
+        return Err(format!("need 0 < MIN ≤ MAX, finite; got {min},{max}"));
+    }
+    Ok([min, max])
 }
 
 /// Names of the files one scenario writes.
@@ -173,4 +188,27 @@ pub fn run(args: &Args, out: &mut impl Write) -> Result<()> {
         bytes as f64 / 1000.0 / (seconds / 60.0).max(1e-9)
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::parse_moment_range;
+
+    #[test]
+    fn moment_range_takes_min_comma_max_and_refuses_the_rest() {
+        assert_eq!(parse_moment_range("3e-3,3e-2"), Ok([3e-3, 3e-2]));
+        assert_eq!(parse_moment_range("0.01, 0.01"), Ok([0.01, 0.01]));
+        for bad in [
+            "3e-3",
+            "3e-2,3e-3",
+            "0,1",
+            "-1,1",
+            "nan,1",
+            "1,inf",
+            "a,b",
+            "",
+        ] {
+            assert!(parse_moment_range(bad).is_err(), "{bad:?} accepted");
+        }
+    }
 }

@@ -4,7 +4,7 @@
 //! `tests/tests/fuzz_corpus.rs` replays every saved corpus and regression input through
 //! the same functions on stable Rust, so a crash once found stays fixed. A harness
 //! panics (fails) when the code under test panics or breaks one of the invariants of
-//! `shared/ARCHITECTURE.md`: no panic reachable from sensor data, a refused input leaves
+//! `docs/architecture.md`: no panic reachable from sensor data, a refused input leaves
 //! the state unchanged, NaN/Inf never leave a function.
 //!
 //! The bytes are decoded by [`Bytes`], which never fails: when the input runs out every

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""An independent generator of `arva-session` v1 logs (../shared/spec/session-log.md).
+"""An independent generator of `arva-session` v1 logs (docs/session-log.md).
 
 Written from the spec alone, without hal-sim's code, so that `hal-sim replay` can be
 checked on logs whose walk, gait, device attitude, noise draws and timing are not the

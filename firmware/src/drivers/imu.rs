@@ -121,6 +121,7 @@ impl Mounting {
 
 /// Which chip an error concerns.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Chip {
     /// The BMI160 accelerometer + gyroscope.
     Bmi160,
@@ -129,9 +130,11 @@ pub enum Chip {
 }
 
 /// Everything that can go wrong with the IMU.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum ImuError<E> {
     /// The I2C bus reported an error talking to `chip`.
+    #[error("I2C error talking to the {chip:?}: {error:?}")]
     Comm {
         /// The chip addressed.
         chip: Chip,
@@ -139,6 +142,7 @@ pub enum ImuError<E> {
         error: E,
     },
     /// A chip's ID register does not identify the expected chip (the value read).
+    #[error("the {chip:?} answered ID {id:#04x}")]
     WrongId {
         /// The chip addressed.
         chip: Chip,
@@ -146,6 +150,7 @@ pub enum ImuError<E> {
         id: u8,
     },
     /// A driver refused its input, or a data read came back without the data asked for.
+    #[error("no valid data from the {0:?}")]
     InvalidData(Chip),
 }
 
@@ -492,6 +497,25 @@ mod tests {
         assert_eq!(
             LSM303AGR_MAG_TO_BODY.to_chip([0.0, 1.0, 0.0]),
             [1.0, 0.0, 0.0]
+        );
+    }
+
+    #[test]
+    fn errors_say_which_chip_and_what() {
+        let e: ImuError<u8> = ImuError::WrongId {
+            chip: Chip::Lsm303agrMag,
+            id: 0x40,
+        };
+        assert_eq!(e.to_string(), "the Lsm303agrMag answered ID 0x40");
+        let e: ImuError<&str> = ImuError::Comm {
+            chip: Chip::Bmi160,
+            error: "nack",
+        };
+        assert_eq!(e.to_string(), "I2C error talking to the Bmi160: \"nack\"");
+        let app = crate::app::AppError::Motion(crate::motion::MotionError::Gap { dt: 2.5 });
+        assert_eq!(
+            app.to_string(),
+            "IMU sample refused: gap of 2.5 s since the previous IMU sample"
         );
     }
 }

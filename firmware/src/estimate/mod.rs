@@ -206,27 +206,36 @@ impl StepReport {
 }
 
 /// Why an input was refused. A refused input leaves the estimator's state unchanged.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum EstimateError {
     /// An input contained NaN or an infinity.
+    #[error("input NaN or infinite")]
     NonFinite,
     /// The pulse's field vector was exactly zero.
+    #[error("zero field vector")]
     ZeroField,
     /// A field component reached the receiver's saturation level.
+    #[error("field component at the saturation level")]
     Saturated,
     /// A covariance had a negative variance, was not symmetric, or had a correlation
     /// outside [-1, 1].
+    #[error("invalid covariance")]
     InvalidCovariance,
     /// The pulse's time was earlier than the previous pulse's.
+    #[error("pulse time before the previous pulse")]
     TimeWentBackwards,
     /// The configuration is inconsistent (see [`SogConfig::validate`]).
+    #[error("inconsistent estimator configuration")]
     InvalidConfig,
     /// A matrix that must be positive definite was not (typed error of the Cholesky
     /// factorization of the innovation covariance `S`).
+    #[error("innovation covariance not positive definite")]
     NotPositiveDefinite,
     /// A finite input outside any physical range (e.g. a displacement of 1e38 m between
     /// two pulses, angles of 1e38 rad, variances beyond 1e6): refused before it can
     /// overflow the filter's arithmetic.
+    #[error("input outside any physical range")]
     OutOfRange,
 }
 

@@ -4,11 +4,14 @@ use super::calibration::Calibration;
 use super::{MAX_BLOCK, RING_BLOCKS};
 
 /// Why a configuration or an input was refused.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum FrontendError {
     /// A sample was NaN or infinite; it was not consumed.
+    #[error("ADC sample NaN or infinite")]
     NonFiniteSample,
     /// The configuration is inconsistent (see [`FrontendConfig::validate`]).
+    #[error("inconsistent front-end configuration")]
     InvalidConfig,
 }
 

@@ -26,9 +26,11 @@ pub enum OverlapVerdict {
 }
 
 /// Why an overlap could not be judged.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum DominanceError {
     /// An amplitude was NaN, infinite or negative.
+    #[error("an amplitude was NaN, infinite or negative")]
     BadAmplitude,
 }
 

@@ -39,27 +39,35 @@ use attitude::GRAVITY;
 const LIFT_STEP_GUARD_S: f32 = 0.8;
 
 /// Why an IMU sample or a request was refused (the state is then unchanged).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum MotionError {
     /// A NaN or infinite value.
+    #[error("IMU reading NaN or infinite")]
     NonFinite,
     /// A reading at or beyond its sensor's full-scale range.
+    #[error("IMU reading at or beyond full scale")]
     Saturated,
     /// The sample's time is not after the previous sample's.
+    #[error("IMU sample time not after the previous sample")]
     TimeNotIncreasing,
     /// Too long since the previous sample (s); call [`Motion::resync`] to continue.
+    #[error("gap of {dt} s since the previous IMU sample")]
     Gap {
         /// Time since the previous sample, s.
         dt: f32,
     },
     /// A calibration walk with too few steps.
+    #[error("calibration walk with too few steps ({steps})")]
     TooFewSteps {
         /// Steps counted.
         steps: u32,
     },
     /// An argument out of its valid range.
+    #[error("argument out of its valid range")]
     InvalidArgument,
     /// `finish_calibration` without `start_calibration`.
+    #[error("no calibration walk started")]
     NoCalibration,
 }
 

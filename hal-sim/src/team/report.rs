@@ -14,7 +14,8 @@ use std::path::PathBuf;
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// Markdown output; the first scenario's map goes beside it as `team.png`.
-    #[arg(long, default_value = "hal-sim/reports/team.md")]
+    /// (Required: the checked-in report is `hal-sim/reports/team.md`.)
+    #[arg(long)]
     pub out: PathBuf,
     /// Scenarios as `seed:rescuers:victims[:field_m]` (field side 60 m unless given).
     #[arg(

@@ -57,21 +57,29 @@ pub use register::Register;
 pub use types::{Channel, Channels, Config, Frame, Gain, Osr, PowerMode, Status, WordLength};
 
 /// Everything that can go wrong talking to the ADC.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Error<CommE, PinE> {
     /// The SPI bus reported an error.
+    #[error("SPI error: {0:?}")]
     Comm(CommE),
     /// Reading the DRDY pin failed.
+    #[error("DRDY pin read failed: {0:?}")]
     Pin(PinE),
     /// The CRC at the end of a received frame did not match its contents.
+    #[error("frame CRC mismatch")]
     Crc,
     /// The ID register does not identify an ADS131M04 (the value read is attached).
+    #[error("not an ADS131M04 (ID {0:#06x})")]
     UnexpectedId(u16),
     /// A command was not acknowledged as expected (the answer word is attached).
+    #[error("command not acknowledged (answer {0:#06x})")]
     UnexpectedResponse(u16),
     /// DRDY did not go low within the poll limit.
+    #[error("DRDY did not go low in time")]
     Timeout,
     /// An argument was out of range (e.g. turbo OSR outside high-resolution mode).
+    #[error("argument out of range")]
     InvalidInput,
 }
 
