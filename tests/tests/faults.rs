@@ -457,7 +457,12 @@ fn window_with(
     );
     adc_window(
         Disturbed::new(signal, disturbances, cfg.seed ^ 0xD15),
-        &firmware::board::REFERENCE.analog.nominal,
+        // The shipped unit: its bench calibration, not its chain's exact values.
+        &hal_sim::bus::run::scenario_calibration(
+            cfg.seed,
+            hal_sim::bus::run::UnitCalibration::Bench,
+        )
+        .unwrap(),
         span,
         spi,
         rx,

@@ -33,17 +33,23 @@ const ROUNDS: usize = 12;
 const MIN_SHARE: f32 = 0.05;
 
 /// Why a bench calibration could not be made.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum AntennaFitError {
     /// A reading had a non-finite value or a zero field; it was not stored.
+    #[error("bench reading NaN, infinite or with a zero field")]
     NonFinite,
     /// [`MAX_READINGS`] readings are already held; the reading was not stored.
+    #[error("bench readings full")]
     Full,
     /// Fewer than [`MIN_READINGS`] readings.
+    #[error("too few bench readings")]
     TooFewReadings,
     /// The poses leave a coil, or a pair of coils, without enough field.
+    #[error("bench poses leave a coil or a pair of coils without field")]
     PoorCoverage,
     /// The held calibration is invalid, or the fit's is (a dead coil: zero amplitude).
+    #[error("invalid antenna calibration")]
     InvalidCalibration,
 }
 
@@ -135,7 +141,11 @@ impl AntennaCalibrator {
                 Vec3::new(f.x * f.y, f.x * f.z, f.y * f.z).abs()
             })
             .sum();
-        if !t2.iter().chain(pairs.iter()).all(|s| *s >= MIN_SHARE * total) {
+        if !t2
+            .iter()
+            .chain(pairs.iter())
+            .all(|s| *s >= MIN_SHARE * total)
+        {
             return Err(AntennaFitError::PoorCoverage);
         }
         let t2 = components(&t2);
@@ -234,13 +244,22 @@ mod tests {
     }
 
     /// The procedure's poses: the reference field along the four body diagonals.
-    const POSES: [[f32; 3]; 4] = [[1.0, 1.0, 1.0], [1.0, -1.0, -1.0], [-1.0, 1.0, -1.0], [
-        -1.0, -1.0, 1.0,
-    ]];
+    const POSES: [[f32; 3]; 4] = [
+        [1.0, 1.0, 1.0],
+        [1.0, -1.0, -1.0],
+        [-1.0, 1.0, -1.0],
+        [-1.0, -1.0, 1.0],
+    ];
 
     /// The DSP's amplitudes of a pulse of true field `t` for a unit whose actual chain is
     /// `truth` while the DSP holds `held`, with relative noise `noise` per component.
-    fn amplitudes(truth: &Calibration, held: &Calibration, t: &Vec3, noise: f32, rng: &mut Rng) -> [C32; 3] {
+    fn amplitudes(
+        truth: &Calibration,
+        held: &Calibration,
+        t: &Vec3,
+        noise: f32,
+        rng: &mut Rng,
+    ) -> [C32; 3] {
         let z = C32::cis(2.0 * core::f32::consts::PI * rng.uniform());
         let scale = t.norm();
         [0, 1, 2].map(|i| {
@@ -295,7 +314,10 @@ mod tests {
             let c = fit.calibration;
             for i in 0..3 {
                 let g = c.gain_a_per_m_per_v[i] / truth.gain_a_per_m_per_v[i] - 1.0;
-                assert!(libm::fabsf(g) < 4.5 * sigma, "unit {unit} coil {i}: gain error {g}");
+                assert!(
+                    libm::fabsf(g) < 4.5 * sigma,
+                    "unit {unit} coil {i}: gain error {g}"
+                );
                 sum_g2 += g * g;
                 if i > 0 {
                     // A relative phase is the difference of two coils' errors: σ·√2.
@@ -321,7 +343,10 @@ mod tests {
         let rms_g = libm::sqrtf(sum_g2 / count as f32);
         let rms_p = libm::sqrtf(sum_p2 / (count as f32 * 2.0 / 3.0));
         for rms in [rms_g, rms_p] {
-            assert!(rms > 0.6 * sigma && rms < 1.4 * sigma, "rms {rms} vs σ {sigma}");
+            assert!(
+                rms > 0.6 * sigma && rms < 1.4 * sigma,
+                "rms {rms} vs σ {sigma}"
+            );
         }
     }
 
@@ -335,7 +360,8 @@ mod tests {
         let mut cal = AntennaCalibrator::new(held).unwrap();
         for p in POSES.iter().cycle().take(8) {
             let t = Vec3::from(*p) * 1e-3;
-            cal.push(&t, &amplitudes(&truth, &held, &t, 0.0, &mut rng)).unwrap();
+            cal.push(&t, &amplitudes(&truth, &held, &t, 0.0, &mut rng))
+                .unwrap();
         }
         let c = cal.fit().unwrap().calibration;
         for i in 0..3 {
@@ -355,7 +381,10 @@ mod tests {
             cal.push(&Vec3::new(f32::NAN, 0.0, 0.0), &a),
             Err(AntennaFitError::NonFinite)
         );
-        assert_eq!(cal.push(&Vec3::zeros(), &a), Err(AntennaFitError::NonFinite));
+        assert_eq!(
+            cal.push(&Vec3::zeros(), &a),
+            Err(AntennaFitError::NonFinite)
+        );
         let bad = [C32::new(f32::INFINITY, 0.0), C32::ZERO, C32::ZERO];
         assert_eq!(
             cal.push(&Vec3::new(1e-3, 0.0, 0.0), &bad),

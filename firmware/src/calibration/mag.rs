@@ -33,18 +33,23 @@ pub const MIN_SPREAD: f32 = 0.05;
 const MAX_SOFT_IRON_RATIO: f32 = 2.0;
 
 /// Why a magnetometer calibration could not be made.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum MagFitError {
     /// A reading or the field magnitude was NaN, infinite or (the magnitude) not positive;
     /// nothing was accumulated.
+    #[error("magnetometer reading or field magnitude NaN, infinite or not positive")]
     NonFinite,
     /// Fewer than [`MIN_SAMPLES`] readings.
+    #[error("too few magnetometer readings for a calibration")]
     TooFewSamples,
     /// The orientations do not span the sphere: turn the unit through more attitudes
     /// (upside down and on its sides too).
+    #[error("orientations do not span the sphere: turn the unit through more attitudes")]
     PoorCoverage,
     /// The readings do not lie on an ellipsoid of plausible shape (a magnetic disturbance
     /// during the rotation, or a broken sensor).
+    #[error("magnetometer readings do not fit a plausible ellipsoid")]
     NotAnEllipsoid,
 }
 
@@ -161,7 +166,11 @@ impl MagCalibrator {
         let eig = SymmetricEigen::new(m / k);
         let lo = 1.0 / (MAX_SOFT_IRON_RATIO * MAX_SOFT_IRON_RATIO);
         let hi = MAX_SOFT_IRON_RATIO * MAX_SOFT_IRON_RATIO;
-        if !eig.eigenvalues.iter().all(|l| l.is_finite() && *l >= lo && *l <= hi) {
+        if !eig
+            .eigenvalues
+            .iter()
+            .all(|l| l.is_finite() && *l >= lo && *l <= hi)
+        {
             return Err(MagFitError::NotAnEllipsoid);
         }
         let root = eig.eigenvalues.map(libm::sqrtf);

@@ -36,20 +36,27 @@ const FLAG_STEP: u16 = 1 << 2;
 const CRC_AT: usize = RECORD_LEN - 4;
 
 /// Why stored bytes were not accepted as a record.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum RecordError {
     /// Fewer than [`RECORD_LEN`] bytes.
+    #[error("calibration record too short")]
     Length,
     /// Every byte is 0xFF: erased flash, the unit was never calibrated.
+    #[error("no calibration record (erased flash)")]
     Erased,
     /// Not a calibration record.
+    #[error("not a calibration record")]
     Magic,
     /// A layout version this firmware does not read.
+    #[error("calibration record layout version {0} not supported")]
     Version(u16),
     /// The CRC does not match: the record is corrupt.
+    #[error("calibration record CRC mismatch")]
     Crc,
     /// A stored value is not a valid calibration (non-finite, zero gain, singular matrix,
     /// non-positive step length), or an unknown flag is set.
+    #[error("calibration record holds an invalid value")]
     Invalid,
 }
 
@@ -165,9 +172,9 @@ impl CalibrationRecord {
         w.f32s(&a.phase_rad);
         w.f32s(&a.low_range_ratio);
         w.f32s(&a.low_range_phase_rad);
-        let (hard, soft) = self
-            .mag
-            .map_or((Vec3::zeros(), Mat3::zeros()), |m| (m.hard_iron, m.soft_iron));
+        let (hard, soft) = self.mag.map_or((Vec3::zeros(), Mat3::zeros()), |m| {
+            (m.hard_iron, m.soft_iron)
+        });
         w.f32s(hard.as_slice());
         // nalgebra stores column-major: the transpose's storage is the row-major order.
         w.f32s(soft.transpose().as_slice());
@@ -227,7 +234,9 @@ impl CalibrationRecord {
         };
         let valid = record.antenna.is_none_or(|a| a.is_valid())
             && (record.mag.is_none() || mag_ok)
-            && record.step_length_m.is_none_or(|s| s.is_finite() && s > 0.0);
+            && record
+                .step_length_m
+                .is_none_or(|s| s.is_finite() && s > 0.0);
         if valid {
             Ok(record)
         } else {

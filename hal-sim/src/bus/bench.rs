@@ -89,8 +89,8 @@ impl AnalogInput for BenchSignal {
         let mut v = [0.0; 4];
         for (i, out) in v.iter_mut().take(3).enumerate() {
             let n = self.sigma_sample * gauss(&mut self.noise);
-            *out = (h[i] * (arg - c.phase_rad[i]).cos() + n) / c.gain_a_per_m_per_v[i]
-                + c.offset_v[i];
+            *out =
+                (h[i] * (arg - c.phase_rad[i]).cos() + n) / c.gain_a_per_m_per_v[i] + c.offset_v[i];
         }
         v
     }
@@ -129,9 +129,12 @@ pub fn bench_calibrate(unit: &Unit, held: &Calibration, seed: u64) -> Result<Ant
     adc.configure(&REFERENCE.adc.config)
         .map_err(|e| anyhow!("ADC configure: {e:?}"))?;
     adc.set_drdy_poll_limit(1);
-    debug_assert_eq!(fs, f64::from(REFERENCE.adc.config.data_rate_hz(F_CLKIN_HZ as f32)));
-    let mut frontend = Frontend::new(REFERENCE.frontend_config(held))
-        .map_err(|e| anyhow!("front end: {e:?}"))?;
+    debug_assert_eq!(
+        fs,
+        f64::from(REFERENCE.adc.config.data_rate_hz(F_CLKIN_HZ as f32))
+    );
+    let mut frontend =
+        Frontend::new(REFERENCE.frontend_config(held)).map_err(|e| anyhow!("front end: {e:?}"))?;
     let mut cal = AntennaCalibrator::new(*held).map_err(|e| anyhow!("calibrator: {e:?}"))?;
     let end = START_S + pose_s * POSES.len() as f64 + 0.5;
     let ticks = (end * 100.0).ceil() as u64;
@@ -175,26 +178,48 @@ mod tests {
     #[test]
     fn bench_recovers_drawn_units_gains_and_phases() {
         let nominal = REFERENCE.analog.nominal;
-        let (mut worst_gain, mut worst_phase) = (0.0f64, 0.0f64);
-        for seed in 1..=6 {
+        let (mut worst_scale, mut worst_rel, mut worst_phase) = (0.0f64, 0.0f64, 0.0f64);
+        let mut worst_nominal = 0.0f64;
+        for seed in 1..=8 {
             let unit = Unit::draw(&REFERENCE, seed);
             let fit = bench_calibrate(&unit, &nominal, seed).unwrap();
-            assert_eq!(fit.readings, POSES.len() * PULSES_PER_POSE, "every pulse used");
+            assert_eq!(
+                fit.readings,
+                POSES.len() * PULSES_PER_POSE,
+                "every pulse used"
+            );
             let truth = unit.chain;
             let c = fit.calibration;
-            for i in 0..3 {
-                let g = f64::from(c.gain_a_per_m_per_v[i]) / truth.gain_a_per_m_per_v[i] - 1.0;
-                let rel = |ph: f64, ph0: f64| ph - ph0;
-                let dp = rel(f64::from(c.phase_rad[i]), f64::from(c.phase_rad[0]))
-                    - rel(truth.phase_rad[i], truth.phase_rad[0]);
-                worst_gain = worst_gain.max(g.abs());
+            let ratio: Vec<f64> = (0..3)
+                .map(|i| f64::from(c.gain_a_per_m_per_v[i]) / truth.gain_a_per_m_per_v[i])
+                .collect();
+            // The reference moment's error is a common scale of the three gains; the
+            // coils' gains relative to each other turn the vectors.
+            let scale = ratio.iter().product::<f64>().cbrt();
+            worst_scale = worst_scale.max((scale - 1.0).abs());
+            for (i, r) in ratio.iter().enumerate() {
+                worst_rel = worst_rel.max((r / scale - 1.0).abs());
+                let dp = (f64::from(c.phase_rad[i]) - f64::from(c.phase_rad[0]))
+                    - (truth.phase_rad[i] - truth.phase_rad[0]);
                 worst_phase = worst_phase.max(dp.abs().to_degrees());
+                let dn = (f64::from(nominal.phase_rad[i]) - f64::from(nominal.phase_rad[0]))
+                    - (truth.phase_rad[i] - truth.phase_rad[0]);
+                worst_nominal = worst_nominal.max(dn.abs().to_degrees());
             }
         }
-        println!("bench: worst gain error {:.2} %, worst relative phase error {worst_phase:.2}°", 100.0 * worst_gain);
-        // The reference moment's 1 % (a common scale) and 0.5° jig errors dominate; the
-        // tolerances being calibrated out are 3 % and 3°.
-        assert!(worst_gain < 0.03, "gain {worst_gain}");
-        assert!(worst_phase < 0.5, "phase {worst_phase}°");
+        println!(
+            "bench, 8 units: worst common gain scale error {:.2} %, worst relative gain error {:.2} %, \
+             worst relative phase error {worst_phase:.3}° (nominal calibration: {worst_nominal:.1}°)",
+            100.0 * worst_scale,
+            100.0 * worst_rel
+        );
+        // The 1 % reference moment sets the scale; 0.5° jig errors the relative gains
+        // (≈ 1 % of a coil's third of the field per pose, averaged over four poses); the
+        // room's EMI is 10⁻⁵ of the field, so the phases come out almost exact. The
+        // tolerances calibrated out are 3 % and 3°.
+        assert!(worst_scale < 0.035, "scale {worst_scale}");
+        assert!(worst_rel < 0.015, "relative gain {worst_rel}");
+        assert!(worst_phase < 0.1, "phase {worst_phase}°");
+        assert!(worst_nominal > 2.0, "the units are off nominal");
     }
 }

@@ -13,8 +13,8 @@
 //!   sign-ambiguous.
 use super::ads131m04::ads131m04;
 use super::if_signal::IfSignal;
-use super::unit::Unit;
 use super::imu::{ImuBus, ImuSampler};
+use super::unit::Unit;
 use super::{NoDelay, SimClock};
 use crate::physics::V3;
 use crate::scenario::{ScenarioConfig, Simulation, merge, simulate};
@@ -32,11 +32,35 @@ const IMU_STREAM: u64 = 2;
 const ANTENNA_SEED: u64 = 0xA27E_77A0_5EED_0005;
 /// Mixed into the scenario seed for the unit's drawn parameters.
 const UNIT_SEED: u64 = 0x0B0A_2D00_5EED_0001;
+/// Mixed into the scenario seed for the unit's bench session.
+const BENCH_SEED: u64 = 0xBE9C_4000_5EED_0002;
 
 /// The unit the bus-level simulation of scenario seed `seed` runs: drawn about the
 /// reference board's nominal values with its tolerances.
 pub fn scenario_unit(seed: u64) -> Unit {
     Unit::draw(&REFERENCE, seed ^ UNIT_SEED)
+}
+
+/// What a unit's firmware knows of its own analog chain.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum UnitCalibration {
+    /// The board profile's nominal calibration: a unit that has not been on the bench.
+    Nominal,
+    /// The unit's bench calibration (`docs/antenna-bench-calibration.md`), run on the
+    /// emulated unit from the nominal one: a shipped unit.
+    Bench,
+}
+
+/// The calibration the DSP of scenario seed `seed`'s unit holds.
+pub fn scenario_calibration(seed: u64, mode: UnitCalibration) -> Result<Calibration> {
+    let nominal = REFERENCE.analog.nominal;
+    match mode {
+        UnitCalibration::Nominal => Ok(nominal),
+        UnitCalibration::Bench => {
+            super::bench::bench_calibrate(&scenario_unit(seed), &nominal, seed ^ BENCH_SEED)
+                .map(|fit| fit.calibration)
+        }
+    }
 }
 
 /// A bus-level simulation and what it is compared with.
@@ -86,7 +110,7 @@ pub fn simulate_bus(cfg: &ScenarioConfig, unit: &Unit, cal: &Calibration) -> Res
         .map_err(|e| anyhow!("ADC configure: {e:?}"))?;
     adc.set_drdy_poll_limit(1);
     let mut frontend = Frontend::new(REFERENCE.frontend_config(cal))
-    .map_err(|e| anyhow!("frontend configuration: {e:?}"))?;
+        .map_err(|e| anyhow!("frontend configuration: {e:?}"))?;
 
     // IMU chips.
     let model = ImuModel::new(cfg.sensors.imu.clone(), stream(cfg.seed, IMU_STREAM));
@@ -288,8 +312,15 @@ pub fn compare_pulses(run: &BusRun, sigma_bkg: f64, k_sen: f64) -> PulseComparis
 }
 
 /// The bus-level simulation of `cfg` on the scenario's drawn unit ([`scenario_unit`])
-/// holding the profile's nominal calibration (an uncalibrated unit), with context on error.
+/// with its bench calibration (a shipped unit), with context on error.
 pub fn simulate_bus_default(cfg: &ScenarioConfig) -> Result<BusRun> {
-    simulate_bus(cfg, &scenario_unit(cfg.seed), &REFERENCE.analog.nominal)
+    simulate_bus_with(cfg, UnitCalibration::Bench)
+}
+
+/// The bus-level simulation of `cfg` on the scenario's drawn unit holding the calibration
+/// `mode` says, with context on error.
+pub fn simulate_bus_with(cfg: &ScenarioConfig, mode: UnitCalibration) -> Result<BusRun> {
+    let cal = scenario_calibration(cfg.seed, mode)?;
+    simulate_bus(cfg, &scenario_unit(cfg.seed), &cal)
         .with_context(|| format!("bus-level simulation of {:?} seed {}", cfg.preset, cfg.seed))
 }
