@@ -1215,7 +1215,7 @@ pub struct Args {
     #[arg(long)]
     pub out: Option<std::path::PathBuf>,
     /// Write every run's result as JSON Lines here.
-    #[arg(long)]
+    #[arg(long = "jsonl", alias = "runs", value_name = "PATH")]
     pub runs: Option<std::path::PathBuf>,
 }
 

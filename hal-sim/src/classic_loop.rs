@@ -314,7 +314,7 @@ pub struct Args {
     #[arg(long)]
     pub out: Option<std::path::PathBuf>,
     /// Write every classic-mode rescue's outcome as JSON Lines here.
-    #[arg(long)]
+    #[arg(long = "jsonl", alias = "runs", value_name = "PATH")]
     pub runs: Option<std::path::PathBuf>,
 }
 

@@ -4,17 +4,17 @@
 //! mixture components as 2σ ellipses at a few moments, estimate error and distance over
 //! time) and a PNG of the final screen.
 use crate::closed_loop::{self, ClosedLoopConfig, Outcome, PulseRow};
+use crate::plot;
 use anyhow::{Context, Result};
 use embedded_graphics::image::GetPixel;
-use embedded_graphics::mono_font::MonoTextStyle;
-use embedded_graphics::mono_font::ascii::{FONT_6X10, FONT_9X15};
 use embedded_graphics::pixelcolor::{BinaryColor, Rgb888};
 use embedded_graphics::prelude::*;
-use embedded_graphics::text::{Baseline, Text};
 use firmware::app::Receiver;
 use firmware::display::{self, Frame};
+use plotters::coord::Shift;
 use plotters::prelude::*;
 use std::io::{IsTerminal, Write};
+use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 /// Options of `hal-sim demo`.
@@ -221,7 +221,7 @@ pub fn run(args: &Args, out: &mut impl Write) -> Result<()> {
 pub fn summary(o: &Outcome) -> String {
     let fmt = |x: Option<f64>| x.map_or_else(|| "–".into(), |v| format!("{v:.2} m"));
     format!(
-        "seed {}: victim {:.1} m away (depth {:.1} m); {} after {:.0} s, path {:.1} m = {:.2}x ideal; \
+        "seed {}: victim {:.1} m away (depth {:.1} m); {} after {:.0} s, path {:.1} m = {:.2}× ideal; \
          estimate error {} horizontal, {} depth; receiver {:.2} m from the victim; {} pulses, {} re-initializations",
         o.seed,
         o.ideal_path_m,
@@ -260,6 +260,9 @@ pub fn write_frame_png(frame: &Frame, path: &Path, scale: u32) -> Result<()> {
 }
 
 pub(crate) fn write_png(path: &Path, w: u32, h: u32, rgb: &[u8]) -> Result<()> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
     let file =
         std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
     let mut enc = png::Encoder::new(std::io::BufWriter::new(file), w, h);
@@ -345,172 +348,187 @@ pub(crate) fn ellipse_n(m: [f64; 2], c: [f64; 3], n: u32) -> Vec<(f64, f64)> {
 
 /// Plots a run: the map (trajectory, victim, mixture snapshots) above, errors below.
 pub fn plot_outcome(o: &Outcome, path: &Path) -> Result<()> {
+    crate::plot::fonts();
     let (w, h) = (PLOT_W, MAP_H + ERR_H);
     let mut buf = vec![255u8; (w * h * 3) as usize];
-    let mut labels: Vec<(String, Point, Rgb888)> = Vec::new();
     {
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
-        root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e:?}"))?;
-        let (map, err) = root.split_vertically(MAP_H);
-        // Equal-scale map around the track and the victim.
-        let mut pts: Vec<(f64, f64)> = o.track.iter().map(|p| en(*p)).collect();
-        pts.push(en([o.victim[0], o.victim[1]]));
-        let (mut x0, mut x1, mut y0, mut y1) = pts.iter().fold(
-            (f64::MAX, f64::MIN, f64::MAX, f64::MIN),
-            |(a, b, c, d), &(x, y)| (a.min(x), b.max(x), c.min(y), d.max(y)),
-        );
-        let span = (x1 - x0).max(y1 - y0).max(10.0) * 1.15;
-        let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
-        let px_w = f64::from(PLOT_W - 60);
-        let px_h = f64::from(MAP_H - 70);
-        let (sx, sy) = if px_w >= px_h {
-            (span * px_w / px_h, span)
-        } else {
-            (span, span * px_h / px_w)
-        };
-        (x0, x1, y0, y1) = (cx - sx / 2.0, cx + sx / 2.0, cy - sy / 2.0, cy + sy / 2.0);
-        let mut chart = ChartBuilder::on(&map)
-            .margin_top(40)
-            .margin_bottom(30)
-            .margin_left(30)
-            .margin_right(30)
-            .build_cartesian_2d(x0..x1, y0..y1)
-            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
-        // 10 m grid.
-        let grid = RGBColor(230, 230, 230);
-        let mut g = (x0 / 10.0).ceil() * 10.0;
-        while g < x1 {
-            chart
-                .draw_series(LineSeries::new([(g, y0), (g, y1)], grid))
-                .map_err(|e| anyhow::anyhow!("{e:?}"))?;
-            g += 10.0;
+        root.fill(&WHITE).map_err(plot::err)?;
+        let (head, rest) = summary_lines(o);
+        let root = root.titled(&head, (plot::FONT, 20)).map_err(plot::err)?;
+        let (map, err) = root.split_vertically(MAP_H - 30);
+        let (note, map) = map.split_vertically(60);
+        let style = (plot::FONT, 14).into_text_style(&note);
+        for (i, line) in rest.iter().enumerate() {
+            let y = 2 + 18 * i as i32;
+            note.draw_text(line, &style, (70, y)).map_err(plot::err)?;
         }
-        let mut g = (y0 / 10.0).ceil() * 10.0;
-        while g < y1 {
-            chart
-                .draw_series(LineSeries::new([(x0, g), (x1, g)], grid))
-                .map_err(|e| anyhow::anyhow!("{e:?}"))?;
-            g += 10.0;
-        }
-        for (i, s) in o.snapshots.iter().enumerate() {
-            let colour = SNAPSHOT_COLOURS[i % SNAPSHOT_COLOURS.len()];
-            let mut comps: Vec<_> = s.components.iter().filter(|c| c.0 >= 1e-3).collect();
-            comps.sort_by(|a, b| b.0.total_cmp(&a.0));
-            for c in comps.iter().take(150) {
-                let style = colour
-                    .mix(0.25 + 0.75 * c.0.clamp(0.0, 1.0))
-                    .stroke_width(1);
-                chart
-                    .draw_series(std::iter::once(PathElement::new(ellipse(c.1, c.2), style)))
-                    .map_err(|e| anyhow::anyhow!("{e:?}"))?;
-            }
-            chart
-                .draw_series(std::iter::once(Circle::new(en(s.rx), 5, colour.filled())))
-                .map_err(|e| anyhow::anyhow!("{e:?}"))?;
-            let (px, py) = chart.backend_coord(&en(s.rx));
-            labels.push((
-                format!("t={:.0}s {}", s.t, s.status),
-                Point::new(px + 8, py - 4),
-                Rgb888::new(colour.0, colour.1, colour.2),
-            ));
-        }
-        chart
-            .draw_series(LineSeries::new(
-                o.track.iter().map(|p| en(*p)),
-                BLACK.stroke_width(2),
-            ))
-            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
-        let v = en([o.victim[0], o.victim[1]]);
-        chart
-            .draw_series([
-                Cross::new(v, 8, RED.stroke_width(3)),
-                Cross::new(en([o.start[0], o.start[1]]), 6, GREEN.stroke_width(3)),
-            ])
-            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
-        let (vx, vy) = chart.backend_coord(&v);
-        labels.push(("victim".into(), Point::new(vx + 10, vy + 6), Rgb888::RED));
-        let (sx, sy) = chart.backend_coord(&en([o.start[0], o.start[1]]));
-        labels.push((
-            "start".into(),
-            Point::new(sx + 10, sy + 6),
-            Rgb888::new(0, 128, 0),
-        ));
-        labels.push((
-            format!(
-                "10 m grid, north up; {}",
-                "2-sigma ellipses of the mixture components"
-            ),
-            Point::new(30, 22),
-            Rgb888::BLACK,
-        ));
-
-        // Errors over time, log scale.
-        let t_max = o.rows.last().map_or(1.0, |r| r.t).max(1.0);
-        let mut chart = ChartBuilder::on(&err)
-            .margin_top(30)
-            .margin_bottom(25)
-            .margin_left(50)
-            .margin_right(30)
-            .build_cartesian_2d(0.0..t_max, (0.01f64..200.0).log_scale())
-            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
-        for decade in [0.01, 0.1, 1.0, 10.0, 100.0] {
-            chart
-                .draw_series(LineSeries::new([(0.0, decade), (t_max, decade)], grid))
-                .map_err(|e| anyhow::anyhow!("{e:?}"))?;
-            let (_, py) = chart.backend_coord(&(0.0, decade));
-            labels.push((format!("{decade}"), Point::new(4, py - 4), Rgb888::BLACK));
-        }
-        chart
-            .draw_series(LineSeries::new(
-                o.rows.iter().map(|r| (r.t, r.true_distance_m.max(0.01))),
-                RGBColor(120, 120, 120).stroke_width(2),
-            ))
-            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
-        chart
-            .draw_series(LineSeries::new(
-                o.rows
-                    .iter()
-                    .filter_map(|r| r.error_h_m.map(|e| (r.t, e.clamp(0.01, 200.0)))),
-                RED.stroke_width(2),
-            ))
-            .map_err(|e| anyhow::anyhow!("{e:?}"))?;
-        let (_, top) = chart.backend_coord(&(0.0, 200.0));
-        labels.push((
-            format!(
-                "m vs time (0..{t_max:.0} s): grey true distance, red horizontal estimate error"
-            ),
-            Point::new(60, top - 16),
-            Rgb888::BLACK,
-        ));
-        root.present().map_err(|e| anyhow::anyhow!("{e:?}"))?;
-    }
-    let mut canvas = Canvas {
-        buf: &mut buf,
-        w,
-        h,
-    };
-    let title = summary(o);
-    let small = |c| MonoTextStyle::new(&FONT_6X10, c);
-    let (head, rest) = title.split_once(';').unwrap_or((&title, ""));
-    let _ = Text::with_baseline(
-        head,
-        Point::new(30, 4),
-        MonoTextStyle::new(&FONT_9X15, Rgb888::BLACK),
-        Baseline::Top,
-    )
-    .draw(&mut canvas);
-    let rest = rest.trim();
-    let _ = Text::with_baseline(
-        rest,
-        Point::new(30, MAP_H as i32 - 16),
-        small(Rgb888::BLACK),
-        Baseline::Top,
-    )
-    .draw(&mut canvas);
-    for (text, at, colour) in &labels {
-        let _ = Text::with_baseline(text, *at, small(*colour), Baseline::Top).draw(&mut canvas);
+        draw_map(o, &map)?;
+        draw_errors(o, &err)?;
+        root.present().map_err(plot::err)?;
     }
     write_png(path, w, h, &buf)
+}
+
+/// The summary split for a figure: a title, then lines short enough for the width.
+fn summary_lines(o: &Outcome) -> (String, Vec<String>) {
+    let s = summary(o);
+    let mut parts = s.split(';').map(str::trim);
+    let head = parts.next().unwrap_or_default().to_string();
+    let mut lines = vec![String::new()];
+    for part in parts {
+        let last = lines.len() - 1;
+        if !lines[last].is_empty() && lines[last].len() + part.len() > 90 {
+            lines.push(String::new());
+        }
+        let last = lines.len() - 1;
+        if !lines[last].is_empty() {
+            lines[last].push_str("; ");
+        }
+        lines[last].push_str(part);
+    }
+    lines.push("ellipses: 2σ of each mixture component at the pulse marked in its colour".into());
+    (head, lines)
+}
+
+/// Square metres on both axes around the track and the victim, as ranges for the chart.
+fn map_ranges(o: &Outcome, aspect: f64) -> (Range<f64>, Range<f64>) {
+    let mut pts: Vec<(f64, f64)> = o.track.iter().map(|p| en(*p)).collect();
+    pts.push(en([o.victim[0], o.victim[1]]));
+    let (x0, x1, y0, y1) = pts.iter().fold(
+        (f64::MAX, f64::MIN, f64::MAX, f64::MIN),
+        |(a, b, c, d), &(x, y)| (a.min(x), b.max(x), c.min(y), d.max(y)),
+    );
+    let span = (x1 - x0).max(y1 - y0).max(10.0) * 1.15;
+    let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
+    let (sx, sy) = if aspect >= 1.0 {
+        (span * aspect, span)
+    } else {
+        (span, span / aspect)
+    };
+    (cx - sx / 2.0..cx + sx / 2.0, cy - sy / 2.0..cy + sy / 2.0)
+}
+
+/// The map: walked track, start, victim, and the mixture's 2σ ellipses at a few pulses.
+fn draw_map(o: &Outcome, area: &DrawingArea<BitMapBackend<'_>, Shift>) -> Result<()> {
+    let (pw, ph) = area.dim_in_pixel();
+    // Axes take ≈ 70 px left and 50 px below: keep one metre the same on both axes.
+    let aspect = f64::from(pw.saturating_sub(100)) / f64::from(ph.saturating_sub(60)).max(1.0);
+    let (xr, yr) = map_ranges(o, aspect);
+    let mut chart = ChartBuilder::on(area)
+        .margin(10)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(xr, yr)
+        .map_err(plot::err)?;
+    chart
+        .configure_mesh()
+        .x_desc("east (m)")
+        .y_desc("north (m)")
+        .x_label_formatter(&|v| format!("{v:.0}"))
+        .y_label_formatter(&|v| format!("{v:.0}"))
+        .label_style((plot::FONT, 14))
+        .axis_desc_style((plot::FONT, 15))
+        .light_line_style(RGBColor(240, 240, 240))
+        .bold_line_style(RGBColor(215, 215, 215))
+        .draw()
+        .map_err(plot::err)?;
+    for (i, s) in o.snapshots.iter().enumerate() {
+        let colour = SNAPSHOT_COLOURS[i % SNAPSHOT_COLOURS.len()];
+        let mut comps: Vec<_> = s.components.iter().filter(|c| c.0 >= 1e-3).collect();
+        comps.sort_by(|a, b| b.0.total_cmp(&a.0));
+        for c in comps.iter().take(150) {
+            let style = colour
+                .mix(0.25 + 0.75 * c.0.clamp(0.0, 1.0))
+                .stroke_width(1);
+            chart
+                .draw_series(std::iter::once(PathElement::new(ellipse(c.1, c.2), style)))
+                .map_err(plot::err)?;
+        }
+        chart
+            .draw_series(std::iter::once(Circle::new(en(s.rx), 5, colour.filled())))
+            .map_err(plot::err)?
+            .label(format!("receiver at t = {:.0} s ({})", s.t, s.status))
+            .legend(move |(x, y)| Circle::new((x + 10, y), 5, colour.filled()));
+    }
+    chart
+        .draw_series(LineSeries::new(
+            o.track.iter().map(|p| en(*p)),
+            BLACK.stroke_width(2),
+        ))
+        .map_err(plot::err)?
+        .label("rescuer's walk")
+        .legend(|(x, y)| PathElement::new([(x, y), (x + 20, y)], BLACK.stroke_width(2)));
+    let start = en([o.start[0], o.start[1]]);
+    chart
+        .draw_series(std::iter::once(Cross::new(start, 6, GREEN.stroke_width(3))))
+        .map_err(plot::err)?
+        .label("start")
+        .legend(|(x, y)| Cross::new((x + 10, y), 5, GREEN.stroke_width(3)));
+    let victim = en([o.victim[0], o.victim[1]]);
+    chart
+        .draw_series(std::iter::once(Cross::new(victim, 8, RED.stroke_width(3))))
+        .map_err(plot::err)?
+        .label(format!("victim ({:.1} m deep)", -o.victim[2]))
+        .legend(|(x, y)| Cross::new((x + 10, y), 6, RED.stroke_width(3)));
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
+        .background_style(WHITE.mix(0.85))
+        .border_style(RGBColor(160, 160, 160))
+        .label_font((plot::FONT, 13))
+        .draw()
+        .map_err(plot::err)
+}
+
+/// True distance and the estimate's horizontal error against time, log scale.
+fn draw_errors(o: &Outcome, area: &DrawingArea<BitMapBackend<'_>, Shift>) -> Result<()> {
+    let t_max = o.rows.last().map_or(1.0, |r| r.t).max(1.0);
+    let mut chart = ChartBuilder::on(area)
+        .margin(10)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(0.0..t_max, (0.01f64..200.0).log_scale())
+        .map_err(plot::err)?;
+    chart
+        .configure_mesh()
+        .x_desc("time since the start (s)")
+        .y_desc("metres")
+        .x_label_formatter(&|v| format!("{v:.0}"))
+        .y_label_formatter(&|v| format!("{v}"))
+        .label_style((plot::FONT, 14))
+        .axis_desc_style((plot::FONT, 15))
+        .light_line_style(RGBColor(240, 240, 240))
+        .bold_line_style(RGBColor(215, 215, 215))
+        .draw()
+        .map_err(plot::err)?;
+    let grey = RGBColor(120, 120, 120);
+    chart
+        .draw_series(LineSeries::new(
+            o.rows.iter().map(|r| (r.t, r.true_distance_m.max(0.01))),
+            grey.stroke_width(2),
+        ))
+        .map_err(plot::err)?
+        .label("true distance to the victim")
+        .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], grey.stroke_width(2)));
+    chart
+        .draw_series(LineSeries::new(
+            o.rows
+                .iter()
+                .filter_map(|r| r.error_h_m.map(|e| (r.t, e.clamp(0.01, 200.0)))),
+            RED.stroke_width(2),
+        ))
+        .map_err(plot::err)?
+        .label("horizontal error of the estimate")
+        .legend(|(x, y)| PathElement::new([(x, y), (x + 20, y)], RED.stroke_width(2)));
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
+        .background_style(WHITE.mix(0.85))
+        .border_style(RGBColor(160, 160, 160))
+        .label_font((plot::FONT, 13))
+        .draw()
+        .map_err(plot::err)
 }
 
 #[cfg(test)]

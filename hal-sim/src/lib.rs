@@ -16,6 +16,7 @@ pub mod inspect;
 pub mod jet;
 pub mod multi;
 pub mod physics;
+pub mod plot;
 pub mod policies;
 pub mod receiver_config;
 pub mod replay;

@@ -22,13 +22,22 @@ enum Command {
     Simulate(simulate::Args),
     /// Run the firmware's estimator over a session log and print one JSON line per pulse
     /// on stdout (the spec's replay output). Warnings and progress go to stderr.
+    ///
+    /// The log is streamed (bounded memory); pulse records written up to 2 s late are put
+    /// in order; a malformed line is reported with its number and skipped; a second header
+    /// starts a new segment (a fresh receiver); `seq` gaps are reported. A summary of what
+    /// was read, skipped and refused ends the run on stderr. `-` reads standard input live:
+    /// each record is processed as it arrives and each pulse's line is flushed at once.
     Replay {
-        /// The session log (JSON Lines).
+        /// The session log (JSON Lines), or `-` for standard input (live mode).
         log: PathBuf,
         /// receiver.json to tell the receiver about its world; without it the built-in
         /// defaults apply.
         #[arg(long)]
         receiver: Option<PathBuf>,
+        /// Stop with exit status 1 at the first malformed line instead of skipping it.
+        #[arg(long)]
+        strict: bool,
     },
     /// Summarize a session log: duration, pulse count, IMU rate, gaps.
     Inspect {
@@ -89,27 +98,58 @@ fn read_log(path: &Path) -> Result<session::Session> {
     Ok(s)
 }
 
+/// `hal-sim replay`: streams the log (or standard input, live) through the firmware.
+fn run_replay(log: &Path, receiver: Option<&Path>, strict: bool) -> Result<()> {
+    let config = match receiver {
+        Some(p) => ReceiverConfig::read_file(p)?,
+        None => ReceiverConfig::default(),
+    };
+    let live = log.as_os_str() == "-";
+    let name = if live {
+        "<stdin>".to_string()
+    } else {
+        log.display().to_string()
+    };
+    let opts = replay::StreamOptions { strict, live };
+    let on_warning = |w: &session::Warning| eprintln!("warning: {name}: {w}");
+    let mut out = std::io::BufWriter::new(std::io::stdout().lock());
+    let (result, bar) = if live {
+        let stdin = std::io::stdin().lock();
+        let r = replay::replay_stream(stdin, &config, &mut out, opts, on_warning, |_| {});
+        (r, None)
+    } else {
+        let f = std::fs::File::open(log).with_context(|| format!("reading {name}"))?;
+        let len = f.metadata().map(|m| m.len()).unwrap_or(0);
+        let bar = indicatif::ProgressBar::new(len);
+        let input = std::io::BufReader::with_capacity(1 << 16, f);
+        let r = replay::replay_stream(input, &config, &mut out, opts, on_warning, |b| {
+            bar.set_position(b)
+        });
+        (r, Some(bar))
+    };
+    if let Some(bar) = bar {
+        bar.finish_and_clear();
+    }
+    match result {
+        Ok(summary) => {
+            eprint!("{summary}");
+            Ok(())
+        }
+        // The reader of the output closed it (`replay … | head -1`): done, quietly.
+        Err(e) if replay::is_broken_pipe(&e) => Ok(()),
+        Err(e) => Err(e.context(format!("replaying {name}"))),
+    }
+}
+
 fn main() -> Result<()> {
     let stdout = std::io::stdout();
     match Cli::parse().command {
         Command::Simulate(args) => simulate::run(&args, &mut stdout.lock()),
-        Command::Replay { log, receiver } => {
-            let s = read_log(&log)?;
-            let config = match receiver {
-                Some(p) => ReceiverConfig::read_file(&p)?,
-                None => ReceiverConfig::default(),
-            };
-            let mut estimator = replay::estimator_for(&s.header, &config)?;
-            let bar = indicatif::ProgressBar::new(s.records.len() as u64);
-            let mut out = std::io::BufWriter::new(stdout.lock());
-            replay::replay(&s, estimator.as_mut(), &mut out, |i| {
-                if i % 4096 == 0 {
-                    bar.set_position(i as u64);
-                }
-            })?;
-            bar.finish_and_clear();
-            Ok(())
-        }
+        Command::Replay {
+            log,
+            receiver,
+            strict,
+        } => run_replay(&log, receiver.as_deref(), strict),
         Command::Inspect { log } => {
             let s = read_log(&log)?;
             write!(stdout.lock(), "{}", inspect::summarize(&s))?;

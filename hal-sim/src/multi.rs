@@ -701,7 +701,7 @@ pub struct Args {
     #[arg(long)]
     pub out: Option<std::path::PathBuf>,
     /// Write every rescue's outcome as JSON Lines here.
-    #[arg(long)]
+    #[arg(long = "jsonl", alias = "runs", value_name = "PATH")]
     pub runs: Option<std::path::PathBuf>,
     /// Single-victim rescues (rescue-report's calibrated case) re-run with the per-victim
     /// mixture capacity, to compare with `rescue.md`.

@@ -4,6 +4,107 @@
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
+/// Plausible transmitter moments, A·m² (EN 300 718 beacons are ≈ 3e-3 to 8e-2).
+const MOMENT_RANGE: [f64; 2] = [1e-4, 1.0];
+/// Plausible burial depths below the snow surface, m (negative: above the receiver's
+/// snow plane, e.g. a victim up a slope).
+const DEPTH_RANGE_M: [f64; 2] = [-2.0, 20.0];
+
+/// What each known key must be: a number, a boolean, an object of these, or two numbers.
+enum Kind {
+    Number,
+    Bool,
+    Pair,
+    Object(&'static [(&'static str, Kind)]),
+    /// An object, or null (absent).
+    OptObject(&'static [(&'static str, Kind)]),
+}
+
+const KEYS: &[(&str, Kind)] = &[
+    ("m_min", Kind::Number),
+    ("m_max", Kind::Number),
+    ("m_nom", Kind::Number),
+    ("sign_ambiguous", Kind::Bool),
+    (
+        "pulse_noise",
+        Kind::Object(&[("sigma_bkg_A_per_m", Kind::Number), ("k_sen", Kind::Number)]),
+    ),
+    (
+        "imu",
+        Kind::Object(&[
+            ("hz", Kind::Number),
+            ("gyr_noise_rad_s", Kind::Number),
+            ("gyr_bias_max_rad_s", Kind::Number),
+            ("acc_noise_m_s2", Kind::Number),
+            ("mag_noise_uT", Kind::Number),
+        ]),
+    ),
+    ("victim_depth_range_m", Kind::Pair),
+    ("receiver_height_m", Kind::Number),
+    ("pdr", Kind::OptObject(&[("step_length_m", Kind::Number)])),
+];
+
+/// `Ok` when `v` is an object whose known keys have their kinds (unknown keys are
+/// ignored, as the spec asks), else a message naming the key.
+fn check_types(v: &serde_json::Value) -> Result<(), String> {
+    fn object(prefix: &str, v: &serde_json::Value, keys: &[(&str, Kind)]) -> Result<(), String> {
+        let name = if prefix.is_empty() {
+            "receiver.json"
+        } else {
+            prefix
+        };
+        let map = v
+            .as_object()
+            .ok_or_else(|| format!("{name} must be a JSON object, found {}", kind_of(v)))?;
+        for (key, kind) in keys {
+            let Some(x) = map.get(*key) else { continue };
+            let path = if prefix.is_empty() {
+                (*key).to_string()
+            } else {
+                format!("{prefix}.{key}")
+            };
+            let ok = match kind {
+                Kind::Number => x.is_number(),
+                Kind::Bool => x.is_boolean(),
+                Kind::Pair => x
+                    .as_array()
+                    .is_some_and(|a| a.len() == 2 && a.iter().all(|e| e.is_number())),
+                Kind::Object(inner) => {
+                    object(&path, x, inner)?;
+                    true
+                }
+                Kind::OptObject(inner) => {
+                    if !x.is_null() {
+                        object(&path, x, inner)?;
+                    }
+                    true
+                }
+            };
+            if !ok {
+                let want = match kind {
+                    Kind::Number => "a number",
+                    Kind::Bool => "true or false",
+                    _ => "two numbers [min, max]",
+                };
+                return Err(format!("{path} must be {want}, found {}", kind_of(x)));
+            }
+        }
+        Ok(())
+    }
+    object("", v, KEYS)
+}
+
+fn kind_of(v: &serde_json::Value) -> String {
+    match v {
+        serde_json::Value::Null => "null".into(),
+        serde_json::Value::Bool(b) => b.to_string(),
+        serde_json::Value::Number(n) => n.to_string(),
+        serde_json::Value::String(_) => "a string".into(),
+        serde_json::Value::Array(_) => "an array".into(),
+        serde_json::Value::Object(_) => "an object".into(),
+    }
+}
+
 /// Pulse noise model: per-component σ² = `sigma_bkg`² + (`k_sen`·|H|)² (ICRA 2006 eq. 10).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
@@ -104,9 +205,72 @@ impl Default for ReceiverConfig {
 }
 
 impl ReceiverConfig {
-    /// Parses `receiver.json` text.
+    /// Parses `receiver.json` text: a JSON object whose known keys have the right types
+    /// and lie in their plausible ranges ([`ReceiverConfig::validate`]); the error names
+    /// the key and what is allowed.
     pub fn from_json(text: &str) -> anyhow::Result<Self> {
-        Ok(serde_json::from_str(text)?)
+        let v: serde_json::Value = serde_json::from_str(text)?;
+        check_types(&v).map_err(anyhow::Error::msg)?;
+        let c: Self = serde_json::from_value(v)?;
+        c.validate().map_err(anyhow::Error::msg)?;
+        Ok(c)
+    }
+
+    /// `Ok` when every value is physically plausible (the ranges of
+    /// `docs/session-log.md`), else a message naming the first key out of range and its
+    /// allowed range.
+    pub fn validate(&self) -> Result<(), String> {
+        use crate::session::check_range;
+        for (key, v) in [
+            ("m_min", self.m_min),
+            ("m_nom", self.m_nom),
+            ("m_max", self.m_max),
+        ] {
+            check_range(key, v, MOMENT_RANGE, "A·m²")?;
+        }
+        if !(self.m_min <= self.m_nom && self.m_nom <= self.m_max) {
+            return Err(format!(
+                "m_min = {}, m_nom = {}, m_max = {}: need m_min <= m_nom <= m_max",
+                self.m_min, self.m_nom, self.m_max
+            ));
+        }
+        let n = &self.pulse_noise;
+        check_range(
+            "pulse_noise.sigma_bkg_A_per_m",
+            n.sigma_bkg_a_per_m,
+            [0.0, 1e-5],
+            "A/m",
+        )?;
+        check_range("pulse_noise.k_sen", n.k_sen, [0.0, 0.5], "")?;
+        let i = &self.imu;
+        check_range("imu.hz", i.hz, crate::session::IMU_HZ_RANGE, "Hz")?;
+        check_range(
+            "imu.gyr_noise_rad_s",
+            i.gyr_noise_rad_s,
+            [0.0, 1.0],
+            "rad/s",
+        )?;
+        check_range(
+            "imu.gyr_bias_max_rad_s",
+            i.gyr_bias_max_rad_s,
+            [0.0, 1.0],
+            "rad/s",
+        )?;
+        check_range("imu.acc_noise_m_s2", i.acc_noise_m_s2, [0.0, 10.0], "m/s²")?;
+        check_range("imu.mag_noise_uT", i.mag_noise_ut, [0.0, 50.0], "µT")?;
+        let [lo, hi] = self.victim_depth_range_m;
+        check_range("victim_depth_range_m[0]", lo, DEPTH_RANGE_M, "m")?;
+        check_range("victim_depth_range_m[1]", hi, DEPTH_RANGE_M, "m")?;
+        if lo > hi {
+            return Err(format!(
+                "victim_depth_range_m = [{lo}, {hi}]: the first must not exceed the second"
+            ));
+        }
+        check_range("receiver_height_m", self.receiver_height_m, [0.0, 3.0], "m")?;
+        if let Some(p) = &self.pdr {
+            check_range("pdr.step_length_m", p.step_length_m, [0.2, 1.5], "m")?;
+        }
+        Ok(())
     }
 
     /// Reads `receiver.json` from a file.
@@ -152,5 +316,115 @@ mod tests {
         let back = ReceiverConfig::from_json(&c.to_json()).unwrap();
         assert_eq!(back, c);
         assert!(ReceiverConfig::from_json("{\"m_min\":\"x\"}").is_err());
+    }
+
+    #[test]
+    fn implausible_values_are_refused_by_key_and_range() {
+        let cases = [
+            (
+                r#"{"pdr":{"step_length_m":10}}"#,
+                "pdr.step_length_m",
+                "[0.2, 1.5]",
+            ),
+            (
+                r#"{"pdr":{"step_length_m":1e-30}}"#,
+                "pdr.step_length_m",
+                "[0.2, 1.5]",
+            ),
+            (
+                r#"{"receiver_height_m":1e6}"#,
+                "receiver_height_m",
+                "[0, 3]",
+            ),
+            (r#"{"receiver_height_m":-1}"#, "receiver_height_m", "[0, 3]"),
+            (r#"{"imu":{"hz":1e308}}"#, "imu.hz", "[1, 10000]"),
+            (r#"{"imu":{"hz":0}}"#, "imu.hz", "[1, 10000]"),
+            (
+                r#"{"imu":{"gyr_noise_rad_s":-0.1}}"#,
+                "imu.gyr_noise_rad_s",
+                "[0, 1]",
+            ),
+            (
+                r#"{"imu":{"gyr_bias_max_rad_s":5}}"#,
+                "imu.gyr_bias_max_rad_s",
+                "[0, 1]",
+            ),
+            (
+                r#"{"imu":{"acc_noise_m_s2":100}}"#,
+                "imu.acc_noise_m_s2",
+                "[0, 10]",
+            ),
+            (
+                r#"{"imu":{"mag_noise_uT":1000}}"#,
+                "imu.mag_noise_uT",
+                "[0, 50]",
+            ),
+            (r#"{"m_min":0}"#, "m_min", "[0.0001, 1]"),
+            (r#"{"m_max":5}"#, "m_max", "[0.0001, 1]"),
+            (r#"{"m_nom":1e-9}"#, "m_nom", "[0.0001, 1]"),
+            (
+                r#"{"m_min":0.02,"m_max":0.01}"#,
+                "m_min",
+                "m_min <= m_nom <= m_max",
+            ),
+            (
+                r#"{"pulse_noise":{"sigma_bkg_A_per_m":1}}"#,
+                "pulse_noise.sigma_bkg_A_per_m",
+                "[0, 0.00001]",
+            ),
+            (
+                r#"{"pulse_noise":{"k_sen":-0.1}}"#,
+                "pulse_noise.k_sen",
+                "[0, 0.5]",
+            ),
+            (
+                r#"{"victim_depth_range_m":[0,100]}"#,
+                "victim_depth_range_m[1]",
+                "[-2, 20]",
+            ),
+            (
+                r#"{"victim_depth_range_m":[3,1]}"#,
+                "victim_depth_range_m",
+                "must not exceed",
+            ),
+        ];
+        for (text, key, range) in cases {
+            let e = ReceiverConfig::from_json(text).unwrap_err().to_string();
+            assert!(e.contains(key) && e.contains(range), "{text}: {e}");
+        }
+    }
+
+    #[test]
+    fn the_wrong_shape_is_refused_by_key() {
+        let cases = [
+            ("[1, 2]", "must be a JSON object"),
+            ("3", "must be a JSON object"),
+            ("\"x\"", "must be a JSON object"),
+            (r#"{"m_min":"x"}"#, "m_min must be a number"),
+            (
+                r#"{"sign_ambiguous":1}"#,
+                "sign_ambiguous must be true or false",
+            ),
+            (r#"{"imu":[100]}"#, "imu must be a JSON object"),
+            (r#"{"imu":{"hz":"fast"}}"#, "imu.hz must be a number"),
+            (
+                r#"{"victim_depth_range_m":[1]}"#,
+                "victim_depth_range_m must be two",
+            ),
+            (r#"{"pdr":5}"#, "pdr must be a JSON object"),
+        ];
+        for (text, want) in cases {
+            let e = ReceiverConfig::from_json(text).unwrap_err().to_string();
+            assert!(e.contains(want), "{text}: {e}");
+        }
+        // An explicit null pdr is "not calibrated"; unknown keys of any shape are ignored.
+        let c = ReceiverConfig::from_json(r#"{"pdr":null,"x":[1],"imu":{"y":"z"}}"#).unwrap();
+        assert_eq!(c, ReceiverConfig::default());
+    }
+
+    #[test]
+    fn the_defaults_are_plausible() {
+        assert_eq!(ReceiverConfig::default().validate(), Ok(()));
+        assert!(ReceiverConfig::from_json(&ReceiverConfig::default().to_json()).is_ok());
     }
 }

@@ -5,9 +5,12 @@
 //! that chooses it: the firmware's pipeline. [`NoEstimator`] (empty `victims`) remains for
 //! tests of the output format.
 use crate::receiver_config::ReceiverConfig;
-use crate::session::{Header, Imu, Pulse, Record, Session};
+use crate::session::{
+    Event, Header, Imu, Item, Pulse, ReadOptions, ReadStats, Reader, Record, Session, Warning,
+};
 use serde::{Deserialize, Serialize};
-use std::io::Write;
+use std::collections::BTreeMap;
+use std::io::{BufRead, Write};
 
 /// One victim in a replay line.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -60,6 +63,23 @@ pub trait Estimator {
     fn on_imu(&mut self, imu: &Imu);
     /// Consumes a pulse and reports the state after it.
     fn on_pulse(&mut self, pulse: &Pulse) -> ReplayLine;
+    /// Consumes an event record (`"mark"` presses the mark button); others are ignored.
+    fn on_event(&mut self, _event: &Event) {}
+    /// The current state for a pulse that is answered without being processed (`status`
+    /// says why, e.g. `"late"`).
+    fn state_line(&mut self, t: f64, status: &str) -> ReplayLine {
+        ReplayLine {
+            t,
+            n_components: 0,
+            arrow_deg: None,
+            status: Some(status.to_string()),
+            victims: Vec::new(),
+        }
+    }
+    /// Inputs refused so far, by reason (for the summary).
+    fn refusals(&self) -> Vec<(&'static str, u64)> {
+        Vec::new()
+    }
 }
 
 /// The placeholder estimator: no estimate, empty `victims`.
@@ -127,6 +147,209 @@ pub fn replay(
     }
     out.flush()?;
     Ok(lines)
+}
+
+/// How a streamed replay reads its input.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct StreamOptions {
+    /// Stop at the first malformed line (exit status 1) instead of skipping it.
+    pub strict: bool,
+    /// Live input: no reordering window (each record is processed as it arrives) and each
+    /// line is flushed as soon as it is written.
+    pub live: bool,
+}
+
+/// What a streamed replay read, skipped, refused and wrote.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct ReplaySummary {
+    /// The reader's counts.
+    pub read: ReadStats,
+    /// Lines written (one per pulse record).
+    pub lines: u64,
+    /// Pulses answered without being processed because they came too late.
+    pub late_pulses: u64,
+    /// Inputs the estimator refused, by reason, summed over the segments.
+    pub refused: Vec<(&'static str, u64)>,
+}
+
+impl ReplaySummary {
+    fn add_refusals(&mut self, r: Vec<(&'static str, u64)>) {
+        for (why, n) in r {
+            match self.refused.iter_mut().find(|(w, _)| *w == why) {
+                Some((_, m)) => *m += n,
+                None => self.refused.push((why, n)),
+            }
+        }
+    }
+}
+
+impl std::fmt::Display for ReplaySummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let r = &self.read;
+        writeln!(
+            f,
+            "replay summary: {} lines read in {} segment(s); records: {} imu, {} pulse, {} event, {} truth; {} replay lines written",
+            r.lines, r.segments, r.imu, r.pulses, r.events, r.truth, self.lines
+        )?;
+        writeln!(
+            f,
+            "  skipped: {} malformed ({} resynchronized within the line), {} over {} bytes, {} before the first header, {} of unknown type, {} out of t order beyond {} s ({} of them pulses, answered as \"late\")",
+            r.malformed,
+            r.resynchronized,
+            r.too_long,
+            crate::session::MAX_LINE_BYTES,
+            r.before_header,
+            r.unknown_type,
+            r.late,
+            crate::session::REORDER_WINDOW_S,
+            self.late_pulses
+        )?;
+        writeln!(
+            f,
+            "  seq: {} gap(s), {} record(s) lost",
+            r.seq_gaps, r.seq_lost
+        )?;
+        write!(f, "  refused by the firmware:")?;
+        if self.refused.iter().all(|(_, n)| *n == 0) {
+            write!(f, " none")?;
+        }
+        for (why, n) in self.refused.iter().filter(|(_, n)| *n > 0) {
+            write!(f, " {n} {why};")?;
+        }
+        writeln!(f)
+    }
+}
+
+/// Streams a session log from `input` through the firmware's pipeline configured by
+/// `receiver` (a fresh one per segment), writing one JSON line per pulse record to `out`
+/// in file order. Warnings go to `on_warning` as they come; `on_progress` gets the bytes
+/// read so far. Errors: reading or writing failed, an unusable header, the estimator
+/// refused its configuration, and in strict mode the first malformed line.
+pub fn replay_stream(
+    input: impl BufRead,
+    receiver: &ReceiverConfig,
+    out: &mut impl Write,
+    opts: StreamOptions,
+    on_warning: impl FnMut(&Warning),
+    on_progress: impl FnMut(u64),
+) -> anyhow::Result<ReplaySummary> {
+    replay_stream_with(
+        input,
+        |h| estimator_for(h, receiver),
+        out,
+        opts,
+        on_warning,
+        on_progress,
+    )
+}
+
+/// Writes one replay line; an output error stays an [`std::io::Error`] (a closed pipe is
+/// recognized by its kind).
+fn write_line(out: &mut impl Write, l: &ReplayLine) -> anyhow::Result<()> {
+    let mut text = serde_json::to_vec(l)?;
+    text.push(b'\n');
+    out.write_all(&text)?;
+    Ok(())
+}
+
+/// Whether `e` is a write to a closed pipe (`replay … | head -1`): the reader of the
+/// output has all it wanted, not a failure.
+pub fn is_broken_pipe(e: &anyhow::Error) -> bool {
+    e.chain().any(|c| {
+        c.downcast_ref::<std::io::Error>()
+            .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
+    })
+}
+
+/// [`replay_stream`] with the estimator of each segment made by `make`.
+pub fn replay_stream_with(
+    input: impl BufRead,
+    mut make: impl FnMut(&Header) -> anyhow::Result<Box<dyn Estimator>>,
+    out: &mut impl Write,
+    opts: StreamOptions,
+    mut on_warning: impl FnMut(&Warning),
+    mut on_progress: impl FnMut(u64),
+) -> anyhow::Result<ReplaySummary> {
+    let read_opts = ReadOptions {
+        strict: opts.strict,
+        window_s: if opts.live {
+            0.0
+        } else {
+            crate::session::REORDER_WINDOW_S
+        },
+    };
+    let mut reader = Reader::new(input, read_opts);
+    let mut summary = ReplaySummary::default();
+    let mut estimator: Option<Box<dyn Estimator>> = None;
+    // Answers waiting for an earlier pulse record still in the reordering window, by line.
+    let mut done: BTreeMap<usize, ReplayLine> = BTreeMap::new();
+    let mut records = 0u64;
+    loop {
+        let next = reader.next_item();
+        for w in reader.take_warnings() {
+            on_warning(&w);
+        }
+        let Some((line, item)) = next? else { break };
+        match item {
+            Item::Header(h) => {
+                if let Some(e) = estimator.take() {
+                    summary.add_refusals(e.refusals());
+                }
+                estimator = Some(make(&h)?);
+            }
+            Item::Record(r) => {
+                let Some(e) = estimator.as_mut() else {
+                    continue;
+                };
+                match &r {
+                    Record::Imu(x) => e.on_imu(x),
+                    Record::Pulse(p) => {
+                        done.insert(line, e.on_pulse(p));
+                    }
+                    Record::Truth(_) => {}
+                }
+            }
+            Item::Event(ev) => {
+                if let Some(e) = estimator.as_mut() {
+                    e.on_event(&ev);
+                }
+            }
+            Item::Late(p) => {
+                if let Some(e) = estimator.as_mut() {
+                    summary.late_pulses += 1;
+                    done.insert(line, e.state_line(p.t, "late"));
+                }
+            }
+        }
+        // Answers go out in file order: up to the first pulse not yet processed.
+        if !done.is_empty() {
+            let first = reader.first_pending_pulse_line().unwrap_or(usize::MAX);
+            while let Some(entry) = done.first_entry() {
+                if *entry.key() >= first {
+                    break;
+                }
+                write_line(out, &entry.remove())?;
+                summary.lines += 1;
+                if opts.live {
+                    out.flush()?;
+                }
+            }
+        }
+        records += 1;
+        if records.is_multiple_of(4096) {
+            on_progress(reader.stats().bytes);
+        }
+    }
+    for l in done.into_values() {
+        write_line(out, &l)?;
+        summary.lines += 1;
+    }
+    out.flush()?;
+    if let Some(e) = estimator.take() {
+        summary.add_refusals(e.refusals());
+    }
+    summary.read = *reader.stats();
+    Ok(summary)
 }
 
 #[cfg(test)]

@@ -30,7 +30,7 @@ pub struct Args {
     #[arg(long)]
     pub out: Option<std::path::PathBuf>,
     /// Write every rescue's summary as JSON Lines here.
-    #[arg(long)]
+    #[arg(long = "jsonl", alias = "runs", value_name = "PATH")]
     pub runs: Option<std::path::PathBuf>,
     /// Leave out the fine-search lift (issue 6): only the SOG cases without it and DS
     /// (the report before the lift existed).

@@ -5,7 +5,7 @@
 //! arrow and status word.
 use crate::receiver_config::ReceiverConfig;
 use crate::replay::{Estimator, ReplayLine, VictimEstimate};
-use crate::session::{Header, Imu, Pulse};
+use crate::session::{Event, Header, Imu, Pulse};
 use crate::world::earth_field_ut;
 use firmware::Vec3;
 use firmware::app::{AppConfig, Receiver};
@@ -21,6 +21,18 @@ pub struct SogReplay {
     receiver: Box<Receiver>,
     /// Log time of the first record: the firmware runs on times relative to it (f32).
     t0: Option<f64>,
+    /// The log's transmitter ids (`src`, any u32) in the order first heard: the
+    /// firmware's track id is the index, so distinct sources stay distinct.
+    sources: Vec<u32>,
+    /// The pulses processed at the latest pulse time (a repeated record is recognized).
+    last_pulses: Vec<Pulse>,
+    /// Repeated pulse records answered without being processed.
+    duplicates: u64,
+    /// IMU samples whose magnetometer reading was at or beyond full scale: replayed
+    /// without it (acc and gyro are still good).
+    mag_saturated: u64,
+    /// Sources beyond the 255 track ids the firmware distinguishes.
+    sources_overflow: u64,
 }
 
 /// The filter configuration a receiver with `receiver` settings uses, on top of `base`
@@ -64,7 +76,28 @@ impl SogReplay {
         Ok(Self {
             receiver: Box::new(receiver),
             t0: None,
+            sources: Vec::new(),
+            last_pulses: Vec::new(),
+            duplicates: 0,
+            mag_saturated: 0,
+            sources_overflow: 0,
         })
+    }
+
+    /// The firmware's track id for the log's `src`: its index among the sources heard
+    /// (`None`: a single transmitter). Beyond 255 sources all further ones share the
+    /// last id (counted).
+    fn track(&mut self, src: Option<u32>) -> Option<u8> {
+        let s = src?;
+        if let Some(i) = self.sources.iter().position(|x| *x == s) {
+            return Some(u8::try_from(i).unwrap_or(u8::MAX));
+        }
+        if self.sources.len() < usize::from(u8::MAX) {
+            self.sources.push(s);
+            return Some(u8::try_from(self.sources.len() - 1).unwrap_or(u8::MAX));
+        }
+        self.sources_overflow += 1;
+        Some(u8::MAX)
     }
 
     fn rel(&mut self, t: f64) -> f32 {
@@ -90,7 +123,14 @@ fn v3(a: &[f64; 3]) -> Vec3 {
 impl Estimator for SogReplay {
     fn on_imu(&mut self, imu: &Imu) {
         let t = self.rel(imu.t);
-        let mag = imu.mag.as_ref().map(v3);
+        let mut mag = imu.mag.as_ref().map(v3);
+        // A magnetometer axis at or beyond its full scale loses the heading aid of this
+        // sample, not the sample: the accelerometer and gyro readings are still good.
+        let range = self.receiver.config().motion.mag_range_ut;
+        if mag.is_some_and(|m| m.iter().any(|x| x.abs() >= range)) {
+            mag = None;
+            self.mag_saturated += 1;
+        }
         // A refused sample is counted by the receiver and otherwise skipped.
         let _ = self
             .receiver
@@ -98,13 +138,92 @@ impl Estimator for SogReplay {
     }
 
     fn on_pulse(&mut self, pulse: &Pulse) -> ReplayLine {
+        // The same record twice (a capture or a relay that repeats lines) is one pulse:
+        // fed twice it would count as two independent measurements.
+        if self.last_pulses.first().is_some_and(|p| p.t == pulse.t) {
+            if self.last_pulses.contains(pulse) {
+                self.duplicates += 1;
+                return self.state_line(pulse.t, "duplicate");
+            }
+        } else {
+            self.last_pulses.clear();
+        }
+        // Bounded: a log with many different pulses at one time is damaged anyway.
+        if self.last_pulses.len() < 16 {
+            self.last_pulses.push(pulse.clone());
+        }
         let t = self.rel(pulse.t);
-        let src = pulse.src.map(|s| u8::try_from(s).unwrap_or(u8::MAX));
-        // A refused pulse leaves the receiver unchanged: report its current state.
-        let display = self
-            .receiver
-            .on_pulse(t, &v3(&pulse.h), src)
-            .unwrap_or_else(|_| self.receiver.display_model());
+        let src = self.track(pulse.src);
+        match self.receiver.on_pulse(t, &v3(&pulse.h), src) {
+            Ok(display) => self.line(pulse.t, &display, None),
+            // A refused pulse leaves the receiver unchanged: report its current state.
+            Err(_) => {
+                let display = self.receiver.display_model();
+                self.line(pulse.t, &display, Some("refused"))
+            }
+        }
+    }
+
+    fn on_event(&mut self, event: &Event) {
+        match event.kind.as_str() {
+            // Mark with no victim guided to changes nothing (as the button on the board).
+            "mark" => {
+                let _ = self.receiver.mark();
+            }
+            "withheld" => {
+                let t = self.rel(event.t);
+                let _ = self.receiver.on_withheld(t);
+            }
+            _ => {}
+        }
+    }
+
+    fn state_line(&mut self, t: f64, status: &str) -> ReplayLine {
+        let display = self.receiver.display_model();
+        self.line(t, &display, Some(status))
+    }
+
+    fn refusals(&self) -> Vec<(&'static str, u64)> {
+        let s = self.receiver.stats();
+        vec![
+            (
+                "IMU samples (implausible or out of order)",
+                u64::from(s.imu_refused),
+            ),
+            (
+                "pulses (non-finite or refused by the estimator)",
+                u64::from(s.pulses_refused),
+            ),
+            (
+                "pulses withheld by the outlier gate",
+                u64::from(s.pulses_gated),
+            ),
+            (
+                "pulses of sources beyond the victim list",
+                u64::from(s.other_source),
+            ),
+            ("repeated pulse records", self.duplicates),
+            (
+                "magnetometer readings at full scale (sample kept without them)",
+                self.mag_saturated,
+            ),
+            (
+                "pulses of sources beyond 255 distinct ids",
+                self.sources_overflow,
+            ),
+        ]
+    }
+}
+
+impl SogReplay {
+    /// The replay line for the pulse at log time `t` with the receiver's `display`;
+    /// `status` replaces the display's status word (a pulse not processed, and why).
+    fn line(
+        &self,
+        t: f64,
+        display: &firmware::app::DisplayModel,
+        status: Option<&str>,
+    ) -> ReplayLine {
         let yaw = f64::from(self.receiver.motion().attitude().0.z);
         // Every listed victim with an estimate (several transmitters: one mixture each),
         // the one the guidance leads to first; positions relative to the receiver now.
@@ -123,11 +242,91 @@ impl Estimator for SogReplay {
             })
             .collect();
         ReplayLine {
-            t: pulse.t,
+            t,
             n_components: self.receiver.filter().len() as u32,
             arrow_deg: display.arrow_deg.map(f64::from),
-            status: Some(display.status.as_str().to_string()),
+            status: Some(status.unwrap_or(display.status.as_str()).to_string()),
             victims,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn replay() -> SogReplay {
+        let header = Header::new(100.0, [21.0, 0.0, -42.0], true);
+        SogReplay::new(&header, &ReceiverConfig::default()).unwrap()
+    }
+
+    /// One second standing still, level, facing north.
+    fn stand(r: &mut SogReplay, t0: f64, mag: Option<[f64; 3]>) {
+        for k in 0..100 {
+            r.on_imu(&Imu {
+                t: t0 + f64::from(k) * 0.01,
+                acc: [0.0, 0.0, 9.80665],
+                gyr: [0.0; 3],
+                mag,
+            });
+        }
+    }
+
+    #[test]
+    fn a_repeated_pulse_record_is_processed_once() {
+        let mut r = replay();
+        stand(&mut r, 0.0, Some([21.0, 0.0, -42.0]));
+        let p = Pulse {
+            t: 0.995,
+            h: [2e-4, 5e-5, -1e-4],
+            src: None,
+        };
+        let first = r.on_pulse(&p);
+        let pulses = r.receiver().display_model().pulses;
+        for _ in 0..5 {
+            let again = r.on_pulse(&p);
+            assert_eq!(again.status.as_deref(), Some("duplicate"));
+            assert_eq!(again.victims, first.victims);
+        }
+        assert_eq!(r.receiver().display_model().pulses, pulses);
+        assert_eq!(r.duplicates, 5);
+        // Another field at the same time is not a repeat.
+        let other = Pulse {
+            h: [1e-4, 5e-5, -1e-4],
+            ..p
+        };
+        assert_ne!(r.on_pulse(&other).status.as_deref(), Some("duplicate"));
+    }
+
+    #[test]
+    fn a_saturated_magnetometer_drops_only_the_heading_aid() {
+        let mut r = replay();
+        stand(&mut r, 0.0, Some([21.0, 0.0, -42.0]));
+        stand(&mut r, 1.0, Some([5000.0, 0.0, -42.0]));
+        assert_eq!(r.receiver().stats().imu_refused, 0, "acc and gyro kept");
+        assert_eq!(r.mag_saturated, 100);
+        let refusals = r.refusals();
+        assert!(
+            refusals
+                .iter()
+                .any(|(why, n)| why.contains("full scale") && *n == 100)
+        );
+    }
+
+    #[test]
+    fn sources_beyond_255_stay_apart() {
+        let mut r = replay();
+        assert_eq!(r.track(None), None);
+        let a = r.track(Some(300));
+        let b = r.track(Some(1 << 31));
+        assert_ne!(a, b);
+        assert_eq!(r.track(Some(300)), a);
+        assert_eq!(r.track(Some(0)), Some(2));
+        for s in 1000..1300 {
+            let _ = r.track(Some(s));
+        }
+        assert_eq!(r.sources.len(), 255);
+        assert!(r.sources_overflow > 0);
+        assert_eq!(r.track(Some(300)), a, "a known source keeps its id");
     }
 }

@@ -1,7 +1,17 @@
 //! The board: one description of the reference design ([`profile`]) that the board binary
-//! and `hal-sim`'s emulated board both read.
+//! and `hal-sim`'s emulated board both read, its pin map ([`pins`]), and the hardware-free
+//! parts of the board binary's supervision: the progress-checked watchdog feeder
+//! ([`watchdog`]), the crash record kept across a reset ([`crash`]), the guarded and
+//! recoverable I2C bus ([`i2c_bus`]), the sensor-fault and battery display
+//! ([`health`]) and the guidance tones ([`sound`]).
 
+pub mod crash;
+pub mod health;
+pub mod i2c_bus;
+pub mod pins;
 pub mod profile;
+pub mod sound;
+pub mod watchdog;
 
 pub use profile::{
     AdcProfile, AnalogProfile, BoardProfile, Capacity, Defaults, IfRange, ImuProfile, REFERENCE,

@@ -2,12 +2,10 @@
 //! corrected tracks (rescuer colours), victims with 2σ ellipses and labels, and when the
 //! truth is known the true victims (black crosses) and true tracks (grey).
 use super::map::TeamMap;
-use crate::demo::{Canvas, ellipse_n, en, write_png};
+use crate::demo::{ellipse_n, en, write_png};
+use crate::plot::{self, FONT};
 use anyhow::Result;
-use embedded_graphics::mono_font::{MonoTextStyle, ascii::FONT_6X10};
-use embedded_graphics::pixelcolor::Rgb888;
-use embedded_graphics::prelude::*;
-use embedded_graphics::text::{Baseline, Text};
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use std::path::Path;
 
@@ -28,13 +26,68 @@ const COLOURS: [RGBColor; 4] = [
 ];
 const SIZE: u32 = 900;
 
-fn e<E: std::fmt::Debug>(err: E) -> anyhow::Error {
-    anyhow::anyhow!("{err:?}")
-}
+/// The chart every layer of the map is drawn on.
+type MapChart<'a, 'b> =
+    ChartContext<'a, BitMapBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
 
 /// Draws `map` (and `truth`) to a PNG at `path`.
 pub fn plot(map: &TeamMap, truth: Option<&TruthOverlay>, path: &Path) -> Result<()> {
+    plot::fonts();
     let mut buf = vec![255u8; (SIZE * SIZE * 3) as usize];
+    let (xr, yr) = ranges(map);
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (SIZE, SIZE)).into_drawing_area();
+        root.fill(&WHITE).map_err(plot::err)?;
+        let title = format!(
+            "team map: {} victims, {} rescuers, {:.0} m² covered (strips ±{:.0} m)",
+            map.victims.iter().filter(|v| v.p.is_some()).count(),
+            map.rescuers.len(),
+            map.covered_area_m2,
+            map.options.strip_half_width_m
+        );
+        let root = root.titled(&title, (FONT, 20)).map_err(plot::err)?;
+        let mut chart = ChartBuilder::on(&root)
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(55)
+            .build_cartesian_2d(xr, yr)
+            .map_err(plot::err)?;
+        chart
+            .configure_mesh()
+            .x_desc("east (m)")
+            .y_desc("north (m)")
+            .x_label_formatter(&|v| format!("{v:.0}"))
+            .y_label_formatter(&|v| format!("{v:.0}"))
+            .label_style((FONT, 14))
+            .axis_desc_style((FONT, 15))
+            .light_line_style(RGBColor(244, 244, 244))
+            .bold_line_style(RGBColor(220, 220, 220))
+            .draw()
+            .map_err(plot::err)?;
+        draw_coverage(map, &mut chart)?;
+        if let Some(t) = truth {
+            draw_true_tracks(t, &mut chart)?;
+        }
+        draw_tracks(map, &mut chart)?;
+        draw_victims(map, &mut chart)?;
+        if let Some(t) = truth {
+            draw_true_victims(t, &mut chart)?;
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperRight)
+            .background_style(WHITE.mix(0.85))
+            .border_style(RGBColor(160, 160, 160))
+            .label_font((FONT, 13))
+            .draw()
+            .map_err(plot::err)?;
+        root.present().map_err(plot::err)?;
+    }
+    write_png(path, SIZE, SIZE, &buf)
+}
+
+/// A square view around every track and victim with room for the strips.
+fn ranges(map: &TeamMap) -> (std::ops::Range<f64>, std::ops::Range<f64>) {
     let mut pts: Vec<(f64, f64)> = map
         .rescuers
         .iter()
@@ -47,126 +100,130 @@ pub fn plot(map: &TeamMap, truth: Option<&TruthOverlay>, path: &Path) -> Result<
     );
     let span = ((x1 - x0).max(y1 - y0).max(10.0) + 2.0 * map.options.strip_half_width_m) * 1.05;
     let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
-    let (xr, yr) = (
+    (
         cx - 0.5 * span..cx + 0.5 * span,
         cy - 0.5 * span..cy + 0.5 * span,
-    );
-    let mut labels: Vec<(String, (f64, f64), Rgb888)> = Vec::new();
-    {
-        let root = BitMapBackend::with_buffer(&mut buf, (SIZE, SIZE)).into_drawing_area();
-        root.fill(&WHITE).map_err(e)?;
-        let mut chart = ChartBuilder::on(&root)
-            .margin(20)
-            .build_cartesian_2d(xr.clone(), yr.clone())
-            .map_err(e)?;
-        // Covered area: the union of the strips, 1 m cells in light grey.
-        let cells = super::map::covered_cells(map);
-        chart
-            .draw_series(cells.iter().map(|(c, _)| {
-                let (x, y) = en(*c);
-                Rectangle::new(
-                    [(x - 0.5, y - 0.5), (x + 0.5, y + 0.5)],
-                    RGBColor(236, 238, 242).filled(),
-                )
-            }))
-            .map_err(e)?;
-        if let Some(t) = truth {
-            for tr in &t.tracks {
-                let line: Vec<(f64, f64)> = tr.iter().map(|p| en(*p)).collect();
-                chart
-                    .draw_series(LineSeries::new(
-                        line,
-                        RGBColor(120, 120, 120).stroke_width(1),
-                    ))
-                    .map_err(e)?;
-            }
-        }
-        for (r, res) in map.rescuers.iter().enumerate() {
-            let c = COLOURS[r % 4];
-            let dr: Vec<(f64, f64)> = res.dr_track.iter().map(|p| en([p[1], p[2]])).collect();
-            chart
-                .draw_series(LineSeries::new(dr, c.mix(0.35).stroke_width(1)))
-                .map_err(e)?;
-            let line: Vec<(f64, f64)> = res.track.iter().map(|p| en([p[1], p[2]])).collect();
-            if let Some(&s) = line.first() {
-                labels.push((format!("R{r}"), s, Rgb888::new(c.0, c.1, c.2)));
-            }
-            chart
-                .draw_series(LineSeries::new(line, c.stroke_width(2)))
-                .map_err(e)?;
-        }
-        for v in &map.victims {
-            let (Some(p), Some(c)) = (v.p, v.cov) else {
-                continue;
-            };
-            chart
-                .draw_series(std::iter::once(PathElement::new(
-                    ellipse_n(p, c, 36),
-                    RED.stroke_width(2),
-                )))
-                .map_err(e)?;
-            chart
-                .draw_series(std::iter::once(Circle::new(en(p), 4, RED.filled())))
-                .map_err(e)?;
-            // Each rescuer's own-map position: small circles in its colour.
-            for s in &v.seen_by {
-                if let Some(o) = s.own_p {
-                    let c = COLOURS[s.rescuer % 4];
-                    chart
-                        .draw_series(std::iter::once(Circle::new(en(o), 3, c.stroke_width(2))))
-                        .map_err(e)?;
-                }
-            }
-            labels.push((format!("V{}", v.id), en(p), Rgb888::new(200, 0, 0)));
-        }
-        if let Some(t) = truth {
-            for v in &t.victims {
-                let (x, y) = en(*v);
-                let d = 1.0;
-                for seg in [
-                    [(x - d, y - d), (x + d, y + d)],
-                    [(x - d, y + d), (x + d, y - d)],
-                ] {
-                    chart
-                        .draw_series(LineSeries::new(seg, BLACK.stroke_width(2)))
-                        .map_err(e)?;
-                }
-            }
-        }
-        root.present().map_err(e)?;
-    }
-    let to_px = |(x, y): (f64, f64)| {
-        let u = 20.0 + (x - xr.start) / span * f64::from(SIZE - 40);
-        let v = 20.0 + (yr.end - y) / span * f64::from(SIZE - 40);
-        Point::new(u as i32 + 6, v as i32 - 12)
-    };
-    let mut canvas = Canvas {
-        buf: &mut buf,
-        w: SIZE,
-        h: SIZE,
-    };
-    let title = format!(
-        "team map: {} victims, {} rescuers, covered {:.0} m2 (strip +-{:.0} m); north up",
-        map.victims.iter().filter(|v| v.p.is_some()).count(),
-        map.rescuers.len(),
-        map.covered_area_m2,
-        map.options.strip_half_width_m
-    );
-    let _ = Text::with_baseline(
-        &title,
-        Point::new(24, 4),
-        MonoTextStyle::new(&FONT_6X10, Rgb888::BLACK),
-        Baseline::Top,
     )
-    .draw(&mut canvas);
-    for (text, at, colour) in &labels {
-        let _ = Text::with_baseline(
-            text,
-            to_px(*at),
-            MonoTextStyle::new(&FONT_6X10, *colour),
-            Baseline::Top,
-        )
-        .draw(&mut canvas);
+}
+
+/// The covered area: the union of the strips, 1 m cells in light grey.
+fn draw_coverage(map: &TeamMap, chart: &mut MapChart<'_, '_>) -> Result<()> {
+    let cells = super::map::covered_cells(map);
+    let fill = RGBColor(226, 230, 238);
+    chart
+        .draw_series(cells.iter().map(|(c, _)| {
+            let (x, y) = en(*c);
+            Rectangle::new([(x - 0.5, y - 0.5), (x + 0.5, y + 0.5)], fill.filled())
+        }))
+        .map_err(plot::err)?
+        .label("area covered by the strips")
+        .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 20, y + 5)], fill.filled()));
+    Ok(())
+}
+
+/// The simulator's true tracks, thin grey.
+fn draw_true_tracks(t: &TruthOverlay, chart: &mut MapChart<'_, '_>) -> Result<()> {
+    let grey = RGBColor(120, 120, 120);
+    for (i, tr) in t.tracks.iter().enumerate() {
+        let drawn = chart
+            .draw_series(LineSeries::new(
+                tr.iter().map(|p| en(*p)),
+                grey.stroke_width(1),
+            ))
+            .map_err(plot::err)?;
+        if i == 0 {
+            drawn
+                .label("true tracks")
+                .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], grey));
+        }
     }
-    write_png(path, SIZE, SIZE, &buf)
+    Ok(())
+}
+
+/// Each rescuer's dead-reckoned track (pale) and corrected track (its colour, labelled).
+fn draw_tracks(map: &TeamMap, chart: &mut MapChart<'_, '_>) -> Result<()> {
+    for (r, res) in map.rescuers.iter().enumerate() {
+        let c = COLOURS[r % COLOURS.len()];
+        let dr = res.dr_track.iter().map(|p| en([p[1], p[2]]));
+        let pale = chart
+            .draw_series(LineSeries::new(dr, c.mix(0.35).stroke_width(1)))
+            .map_err(plot::err)?;
+        if r == 0 {
+            pale.label("dead-reckoned tracks (pale)")
+                .legend(move |(x, y)| {
+                    PathElement::new([(x, y), (x + 20, y)], c.mix(0.35).stroke_width(1))
+                });
+        }
+        let line: Vec<(f64, f64)> = res.track.iter().map(|p| en([p[1], p[2]])).collect();
+        if let Some(&start) = line.first() {
+            chart
+                .draw_series(std::iter::once(Text::new(
+                    format!("R{r}"),
+                    start,
+                    (FONT, 15).into_font().color(&c),
+                )))
+                .map_err(plot::err)?;
+        }
+        chart
+            .draw_series(LineSeries::new(line, c.stroke_width(2)))
+            .map_err(plot::err)?
+            .label(format!("R{r}: track corrected by the joint map"))
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], c.stroke_width(2)));
+    }
+    Ok(())
+}
+
+/// The joint map's victims (2σ ellipse, labelled) and each rescuer's own-map position.
+fn draw_victims(map: &TeamMap, chart: &mut MapChart<'_, '_>) -> Result<()> {
+    let (mut ring_in_legend, mut own_in_legend) = (false, false);
+    for v in &map.victims {
+        let (Some(p), Some(c)) = (v.p, v.cov) else {
+            continue;
+        };
+        let ring = PathElement::new(ellipse_n(p, c, 36), RED.stroke_width(2));
+        let ring = chart
+            .draw_series(std::iter::once(ring))
+            .map_err(plot::err)?;
+        if !ring_in_legend {
+            ring.label("victim in the joint map, 2σ")
+                .legend(|(x, y)| Circle::new((x + 10, y), 5, RED.stroke_width(2)));
+            ring_in_legend = true;
+        }
+        let at = EmptyElement::at(en(p));
+        let name = Text::new(
+            format!("V{}", v.id),
+            (7, -16),
+            (FONT, 14).into_font().color(&RED),
+        );
+        chart
+            .draw_series([at + Circle::new((0, 0), 4, RED.filled()) + name])
+            .map_err(plot::err)?;
+        for s in &v.seen_by {
+            let Some(o) = s.own_p else { continue };
+            let c = COLOURS[s.rescuer % COLOURS.len()];
+            let own = chart
+                .draw_series(std::iter::once(Circle::new(en(o), 3, c.stroke_width(2))))
+                .map_err(plot::err)?;
+            if !own_in_legend {
+                own.label("victim in one rescuer's own map")
+                    .legend(move |(x, y)| Circle::new((x + 10, y), 3, c.stroke_width(2)));
+                own_in_legend = true;
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The true victims as black crosses.
+fn draw_true_victims(t: &TruthOverlay, chart: &mut MapChart<'_, '_>) -> Result<()> {
+    let crosses = t
+        .victims
+        .iter()
+        .map(|v| Cross::new(en(*v), 7, BLACK.stroke_width(2)));
+    chart
+        .draw_series(crosses)
+        .map_err(plot::err)?
+        .label("true victims")
+        .legend(|(x, y)| Cross::new((x + 10, y), 5, BLACK.stroke_width(2)));
+    Ok(())
 }

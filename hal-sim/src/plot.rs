@@ -1,0 +1,46 @@
+//! What every figure shares: a real font (DejaVu Sans, embedded, so a fresh machine needs no
+//! font stack) for plotters' axes, ticks, captions and legends, and the error conversion.
+use plotters::style::{FontStyle, register_font};
+use std::sync::Once;
+
+/// The embedded font (license: `hal-sim/assets/LICENSE-DejaVu.txt`).
+const SANS: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
+
+/// The family name figures use in their text styles.
+pub const FONT: &str = "sans-serif";
+
+/// Registers the embedded font with plotters (once per process).
+pub fn fonts() {
+    static REGISTER: Once = Once::new();
+    REGISTER.call_once(|| {
+        // The bytes are a valid TrueType font (checked by the test below): ignoring the
+        // error cannot hide a bad input at run time.
+        let _ = register_font(FONT, FontStyle::Normal, SANS);
+    });
+}
+
+/// Turns a plotters drawing error (which is not `Send + Sync`) into an `anyhow` error.
+pub fn err(e: impl std::fmt::Debug) -> anyhow::Error {
+    anyhow::anyhow!("drawing failed: {e:?}")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use plotters::prelude::*;
+
+    #[test]
+    fn the_embedded_font_draws_text_with_non_ascii_signs() {
+        fonts();
+        assert!(register_font("check", FontStyle::Normal, SANS).is_ok());
+        let mut buf = vec![255u8; 200 * 40 * 3];
+        {
+            let root = BitMapBackend::with_buffer(&mut buf, (200, 40)).into_drawing_area();
+            root.draw_text("2σ × 10 m", &(FONT, 20).into_text_style(&root), (5, 5))
+                .expect("text draws");
+            root.present().expect("present");
+        }
+        let inked = buf.chunks(3).filter(|p| p[0] < 128).count();
+        assert!(inked > 100, "only {inked} dark pixels: no glyphs drawn");
+    }
+}

@@ -1,0 +1,225 @@
+//! `hal-sim replay` on damaged and reordered logs, end to end: a simulated log in the
+//! board's order, with a byte-order mark, torn, with garbage, concatenated, with lost
+//! records (`seq`), piped into `head`, and fed live on standard input.
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+use std::io::{BufRead, BufReader, Write};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+
+fn hal_sim(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_hal-sim"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+/// A 40 s simulated search: (directory, its log lines).
+fn simulated(tmp: &Path) -> (PathBuf, Vec<String>) {
+    let dir = tmp.join("sim");
+    let out = hal_sim(&[
+        "simulate",
+        "--preset",
+        "paper",
+        "--seed",
+        "3",
+        "--max-duration-s",
+        "40",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let lines = std::fs::read_to_string(dir.join("session.jsonl"))
+        .unwrap()
+        .lines()
+        .map(String::from)
+        .collect();
+    (dir, lines)
+}
+
+/// Replays `log` (bytes) with the simulation's receiver.json: (stdout lines, stderr, ok).
+fn replay(dir: &Path, name: &str, log: &[u8], extra: &[&str]) -> (Vec<String>, String, bool) {
+    let path = dir.join(name);
+    std::fs::write(&path, log).unwrap();
+    let receiver = dir.join("receiver.json");
+    let mut args = vec![
+        "replay",
+        path.to_str().unwrap(),
+        "--receiver",
+        receiver.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    let out = hal_sim(&args);
+    let lines = text(&out.stdout).lines().map(String::from).collect();
+    (lines, text(&out.stderr), out.status.success())
+}
+
+fn joined(lines: &[String]) -> Vec<u8> {
+    let mut s = lines.join("\n");
+    s.push('\n');
+    s.into_bytes()
+}
+
+fn is_pulse(l: &str) -> bool {
+    l.contains("\"type\":\"pulse\"")
+}
+
+fn t_of(l: &str) -> f64 {
+    let v: serde_json::Value = serde_json::from_str(l).unwrap();
+    v["t"].as_f64().unwrap()
+}
+
+#[test]
+fn damaged_logs_replay_every_intact_pulse() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (dir, lines) = simulated(tmp.path());
+    let pulses = lines.iter().filter(|l| is_pulse(l)).count();
+    assert!(pulses >= 10, "{pulses} pulses");
+    let (reference, err, ok) = replay(&dir, "plain.jsonl", &joined(&lines), &[]);
+    assert!(ok, "{err}");
+    assert_eq!(reference.len(), pulses);
+    assert!(err.contains("replay summary"), "{err}");
+    assert!(err.contains(&format!("{pulses} pulse")), "{err}");
+
+    // The board's order: each pulse written 0.25 s after its centre.
+    let mut board: Vec<String> = Vec::new();
+    let mut held: Vec<String> = Vec::new();
+    for l in &lines {
+        if is_pulse(l) {
+            held.push(l.clone());
+            continue;
+        }
+        if l.contains("\"t\":") {
+            let t = t_of(l);
+            while held.first().is_some_and(|p| t_of(p) + 0.25 <= t) {
+                board.push(held.remove(0));
+            }
+        }
+        board.push(l.clone());
+    }
+    board.append(&mut held);
+    assert_ne!(board, lines);
+    let (out, err, ok) = replay(&dir, "board.jsonl", &joined(&board), &[]);
+    assert!(ok, "{err}");
+    assert_eq!(
+        out, reference,
+        "the board's order replays as the sorted log"
+    );
+    assert!(!err.contains("warning"), "{err}");
+
+    // A byte-order mark.
+    let mut bom = b"\xEF\xBB\xBF".to_vec();
+    bom.extend_from_slice(&joined(&lines));
+    let (out, err, ok) = replay(&dir, "bom.jsonl", &bom, &[]);
+    assert!(ok && out == reference, "{err}");
+
+    // Concatenated captures: two segments, each replayed from a fresh state.
+    let mut twice = joined(&lines);
+    twice.extend_from_slice(&joined(&lines));
+    let (out, err, ok) = replay(&dir, "twice.jsonl", &twice, &[]);
+    assert!(ok, "{err}");
+    assert_eq!(out.len(), 2 * pulses);
+    assert_eq!(out[..pulses], reference[..]);
+    assert_eq!(out[pulses..], reference[..]);
+    assert!(err.contains("in 2 segment(s)"), "{err}");
+
+    // A torn IMU line in the middle and a block of garbage: reported by line number,
+    // every pulse still answered.
+    let mut damaged = lines.clone();
+    let k = (1..damaged.len())
+        .find(|&i| i > damaged.len() / 2 && !is_pulse(&damaged[i]))
+        .unwrap();
+    let half = damaged[k].len() / 2;
+    damaged[k].truncate(half);
+    damaged.insert(k + 10, "\u{1}\u{2}garbage{{{\"".into());
+    damaged.insert(k + 11, "]]]".into());
+    let (out, err, ok) = replay(&dir, "damaged.jsonl", &joined(&damaged), &[]);
+    assert!(ok, "{err}");
+    assert_eq!(out.len(), pulses);
+    for line in [k + 1, k + 11, k + 12] {
+        assert!(err.contains(&format!("line {line}:")), "line {line}: {err}");
+    }
+    assert!(err.contains("3 malformed"), "{err}");
+    let (out, err, ok) = replay(&dir, "damaged.jsonl", &joined(&damaged), &["--strict"]);
+    assert!(!ok && out.is_empty(), "{err}");
+    assert!(err.contains(&format!("line {}:", k + 1)), "{err}");
+
+    // Lost records, as `seq` tells.
+    let mut seq: Vec<String> = lines
+        .iter()
+        .enumerate()
+        .map(|(i, l)| l.replacen('{', &format!("{{\"seq\":{i},"), 1))
+        .collect();
+    seq.drain(100..103);
+    let (out, err, ok) = replay(&dir, "seq.jsonl", &joined(&seq), &[]);
+    assert!(ok, "{err}");
+    assert!(
+        err.contains("seq jumps from 99 to 103: 3 records lost"),
+        "{err}"
+    );
+    assert!(out.len() >= pulses - 3);
+}
+
+#[test]
+fn a_closed_pipe_ends_quietly() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (dir, _) = simulated(tmp.path());
+    let mut child = Command::new(env!("CARGO_BIN_EXE_hal-sim"))
+        .args(["replay", dir.join("session.jsonl").to_str().unwrap()])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut first = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut first)
+        .unwrap();
+    assert!(first.starts_with("{\"t\":"), "{first}");
+    // `head -1` has what it wanted and closes the pipe.
+    let out = child.wait_with_output().unwrap();
+    let err = text(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(!err.to_lowercase().contains("broken pipe"), "{err}");
+}
+
+#[test]
+fn live_mode_answers_each_pulse_as_it_arrives() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (dir, lines) = simulated(tmp.path());
+    let mut child = Command::new(env!("CARGO_BIN_EXE_hal-sim"))
+        .args([
+            "replay",
+            "-",
+            "--receiver",
+            dir.join("receiver.json").to_str().unwrap(),
+        ])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdin = child.stdin.take().unwrap();
+    let mut stdout = BufReader::new(child.stdout.take().unwrap());
+    let mut answered = 0;
+    for l in &lines {
+        writeln!(stdin, "{l}").unwrap();
+        if is_pulse(l) {
+            stdin.flush().unwrap();
+            // The answer comes before the next record is written: the loop can close.
+            let mut answer = String::new();
+            stdout.read_line(&mut answer).unwrap();
+            let v: serde_json::Value = serde_json::from_str(&answer).unwrap();
+            assert_eq!(v["t"].as_f64(), Some(t_of(l)));
+            assert!(v["status"].is_string());
+            answered += 1;
+        }
+    }
+    drop(stdin);
+    let out = child.wait_with_output().unwrap();
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    assert!(out.stdout.is_empty());
+    assert!(answered >= 10, "{answered} answered");
+}
