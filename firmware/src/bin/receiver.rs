@@ -13,6 +13,8 @@
 //! | IMU sample clock (100 Hz) | TIM2 | – |
 //! | mark button (push button to ground, internal pull-up; polled at 100 Hz, debounced) | GPIO | PC6 (D6) |
 //! | fault LED (the Feather's red LED): lit while a sensor fault holds or the display is down | GPIO | PC1 (D13) |
+//! | buzzer (passive piezo): guidance tones ([`firmware::board::sound`]) | TIM4 CH3 PWM | PB8 (D9) |
+//! | sound button (push button to ground, internal pull-up; debounced): mute / unmute, a chirp confirms "on" | GPIO | PC2 (D12) |
 //! | battery voltage (the Feather's ½ divider on BAT, read once a second) | ADC1 IN3 | PA3 (on board) |
 //! | supervision: independent watchdog (1 s), cycle counter (progress times) | IWDG, DWT | – |
 //!
@@ -70,6 +72,7 @@ use firmware::app::Receiver;
 use firmware::board::crash::{self, CrashKind, CrashRecord, LastReset};
 use firmware::board::health::{self, Battery, BatteryState, Fault, SensorHealth};
 use firmware::board::i2c_bus::{self, ClearError, Cleared, Guarded, Recoverable};
+use firmware::board::sound::{self, SoundInput};
 use firmware::board::watchdog::{MonotonicMs, ProgressWatch, Verdict, Work};
 use firmware::board::{self, BoardProfile, pins};
 use firmware::drivers::ads131m04::Ads131m04;
@@ -108,6 +111,9 @@ const PROGRESS_LIMIT_MS: [u64; 2] = [1000, 500];
 const RESET_REPORT_MS: u32 = 3000;
 /// I2C1's bus clock.
 const I2C_HZ: u32 = 400_000;
+/// Guidance tones on at boot (the sound button toggles them; not stored until settings
+/// live in flash).
+const SOUND_ON: bool = true;
 
 /// One simultaneous sample of the three coils.
 #[derive(Clone, Copy)]
@@ -470,6 +476,13 @@ fn main() -> ! {
         defmt::error!("IMU timer refused 100 Hz");
     }
 
+    // Buzzer: a passive piezo on D9 (PB8), TIM4 channel 3 PWM at the tone's frequency and
+    // 50 % duty; duty 0 is silence.
+    let (mut buzz_timer, (_, _, buzz_ch, _)) = dp.TIM4.pwm_hz(2.kHz(), &mut rcc);
+    let mut buzzer = buzz_ch.with(gpiob.pb8);
+    buzzer.set_duty(0);
+    buzzer.enable();
+
     // IMU and display share I2C1. A reset may have cut a transfer with a slave still
     // holding SDA: clear the bus on the bare pins before the peripheral takes them.
     let mut scl = gpiob.pb6.into_open_drain_output();
@@ -539,6 +552,10 @@ fn main() -> ! {
         queue.split();
     // The mark button: flags the victim being guided to as found.
     let mut mark = MarkButton::new(gpioc.pc6.into_pull_up_input());
+    // The sound button: the same debounced press, on D12.
+    let mut sound_button = MarkButton::new(gpioc.pc2.into_pull_up_input());
+    let mut muted = !SOUND_ON;
+    let mut chirp_until_ms = 0u64;
     let mut drdy = gpioc.pc7.into_pull_up_input();
     drdy.make_interrupt_source(&mut syscfg);
     drdy.trigger_on_edge(&mut exti, Edge::Falling);
@@ -582,6 +599,9 @@ fn main() -> ! {
     let mut window_ticks = 0u32;
     let mut window_samples = SAMPLES.load(Ordering::Relaxed);
     let mut window_errors = FRAME_ERRORS.load(Ordering::Relaxed);
+    // What the screen shows last (the tones follow it) and the tone playing.
+    let mut shown = receiver.display_model();
+    let mut playing: Option<u32> = None;
     loop {
         while let Some(sample) = consumer.dequeue() {
             taken = taken.wrapping_add(1);
@@ -602,6 +622,9 @@ fn main() -> ! {
                         // Overlap, clipping, truncation: held out of the estimators.
                         _ => Some(receiver.on_withheld(t_pulse)),
                     };
+                    if let Some(model) = model {
+                        shown = model;
+                    }
                     if let Some(model) = model.filter(|_| screen_ok) {
                         drawn_s = clock.now_s();
                         if !show(&mut screen, &model, fault, battery.state()) {
@@ -666,16 +689,44 @@ fn main() -> ! {
             // REDRAW_MAX_S, so that "NO SIGNAL" and the arrow to a silent victim (carried
             // over the walk) show. Not at every tick: a flush holds the shared I2C bus
             // ≈ 25 ms, two or three IMU ticks.
-            if screen_ok && (redraw || t - drawn_s >= REDRAW_MAX_S) {
+            if redraw || t - drawn_s >= REDRAW_MAX_S {
                 drawn_s = t;
-                if !show(
-                    &mut screen,
-                    &receiver.display_model(),
-                    fault,
-                    battery.state(),
-                ) {
+                shown = receiver.display_model();
+                if screen_ok && !show(&mut screen, &shown, fault, battery.state()) {
                     defmt::warn!("display write failed");
                 }
+            }
+            // The tone of the moment (10 ms edges at the tick).
+            let now_ms = ms_clock.now_ms(DWT::cycle_count());
+            if sound_button.poll() {
+                muted = !muted;
+                if !muted {
+                    chirp_until_ms = now_ms + sound::CHIRP_MS;
+                }
+                defmt::info!("sound {=str}", if muted { "off" } else { "on" });
+            }
+            let tone = if now_ms < chirp_until_ms {
+                Some(sound::CHIRP_HZ)
+            } else {
+                sound::tone_at(
+                    &SoundInput {
+                        status: shown.status,
+                        distance_m: shown.distance_m,
+                        fault,
+                        muted,
+                    },
+                    now_ms,
+                )
+            };
+            if tone != playing {
+                match tone {
+                    Some(hz) => {
+                        buzz_timer.set_period(hz.Hz());
+                        buzzer.set_duty(buzzer.get_max_duty() / 2);
+                    }
+                    None => buzzer.set_duty(0),
+                }
+                playing = tone;
             }
             // A short hole in the ADC's samples holds the clock: skip that tick's sample.
             if let Some(imu) = imu.as_mut().filter(|_| t > last_imu_t) {

@@ -2,14 +2,15 @@
 //! and `hal-sim`'s emulated board both read, its pin map ([`pins`]), and the hardware-free
 //! parts of the board binary's supervision: the progress-checked watchdog feeder
 //! ([`watchdog`]), the crash record kept across a reset ([`crash`]), the guarded and
-//! recoverable I2C bus ([`i2c_bus`]), and the sensor-fault and battery display
-//! ([`health`]).
+//! recoverable I2C bus ([`i2c_bus`]), the sensor-fault and battery display
+//! ([`health`]) and the guidance tones ([`sound`]).
 
 pub mod crash;
 pub mod health;
 pub mod i2c_bus;
 pub mod pins;
 pub mod profile;
+pub mod sound;
 pub mod watchdog;
 
 pub use profile::{

@@ -29,10 +29,15 @@ mod model;
 mod packed;
 mod rot;
 pub mod sog;
+mod store;
 #[cfg(test)]
 mod testsim;
 
-pub use sog::{DefaultSog, Phase, SOG_CAPACITY, SogFilter};
+pub(crate) use gaussian::Component;
+pub(crate) use mixture::normalize;
+pub(crate) use sog::check_inputs;
+pub use sog::{DefaultSog, MixtureView, Phase, SOG_CAPACITY, SogFilter, SogState};
+pub(crate) use store::{PoolShare, Store};
 
 use crate::frame::Rpy;
 use crate::{Mat3, Vec3};

@@ -22,6 +22,9 @@ pub struct Args {
     /// Methods to run (default: all).
     #[arg(long, value_enum, value_delimiter = ',')]
     pub methods: Vec<Method>,
+    /// Skip the paper-protocol sections (only the common protocol's tables).
+    #[arg(long)]
+    pub no_paper_protocols: bool,
 }
 
 /// File names written in the output directory.
@@ -338,7 +341,12 @@ pub fn generate(args: &Args) -> Result<String> {
         .with_context(|| format!("creating {}", args.out.display()))?;
     error_vs_time(&all, &args.out.join(ERROR_PNG))?;
     cdf(&all, &args.out.join(CDF_PNG))?;
-    let md = markdown(args, &all);
+    let mut md = markdown(args, &all);
+    if !args.no_paper_protocols {
+        md.push_str("\n## Each baseline under its own paper's protocol\n\n");
+        let (drone, _) = super::paper::report::drone_section(args.seed, args.runs, &args.out)?;
+        md.push_str(&drone);
+    }
     std::fs::write(args.out.join(REPORT_MD), &md)
         .with_context(|| format!("writing {}", args.out.join(REPORT_MD).display()))?;
     Ok(md)
@@ -363,6 +371,7 @@ mod tests {
             seed: 1,
             out: dir.path().to_path_buf(),
             methods: Vec::new(),
+            no_paper_protocols: true,
         };
         let md = generate(&args).unwrap();
         for m in Method::ALL {
