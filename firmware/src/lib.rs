@@ -16,6 +16,8 @@
 //!   bounds implied by a field magnitude.
 //! - [`board`]: the reference board's profile (analog chain, ADC, IMU mounting,
 //!   capacities, defaults), read by the board binary and by `hal-sim`.
+//! - [`calibration`]: calibration a unit can do (magnetometer from a rotation in place)
+//!   and the record it keeps.
 //! - [`drivers`]: chip drivers generic over `embedded-hal` 1.0 (the antenna ADC).
 //! - [`frontend`]: antenna pulse DSP — detection, I/Q demodulation, field vector per
 //!   pulse, transmitter separation.
@@ -51,6 +53,7 @@
 
 pub mod app;
 pub mod board;
+pub mod calibration;
 pub mod classic;
 pub mod dipole;
 pub mod display;

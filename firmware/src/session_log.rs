@@ -19,6 +19,9 @@ pub enum LogError {
     /// A value was NaN or infinite; nothing was written.
     #[error("value NaN or infinite: nothing written")]
     NonFinite,
+    /// A text value that would need escaping in JSON; nothing was written.
+    #[error("text that would need escaping: nothing written")]
+    Invalid,
     /// The underlying writer failed (the line may be incomplete: readers tolerate a torn
     /// last line).
     #[error("the log writer failed")]
@@ -111,6 +114,31 @@ pub fn write_pulse(w: &mut impl Write, t: f64, h: &Vec3, src: Option<u8>) -> Res
     Ok(())
 }
 
+/// An event record at time `t` (s): `kind` is one of the spec's kinds (`"mark"`,
+/// `"withheld"`, `"gain"`, `"overrun"`, `"read_error"`, `"reset"`, `"settings"`) and `why`
+/// an optional detail. Both are written as JSON strings; a `"` or `\` in them, or a control
+/// character, is refused with [`LogError::Invalid`] before anything is written.
+pub fn write_event(
+    w: &mut impl Write,
+    t: f64,
+    kind: &str,
+    why: Option<&str>,
+) -> Result<(), LogError> {
+    if !t.is_finite() {
+        return Err(LogError::NonFinite);
+    }
+    let plain = |s: &str| !s.chars().any(|c| c == '"' || c == '\\' || c.is_control());
+    if !plain(kind) || !why.is_none_or(plain) {
+        return Err(LogError::Invalid);
+    }
+    write!(w, "{{\"type\":\"event\",\"t\":{t},\"kind\":\"{kind}\"")?;
+    if let Some(why) = why {
+        write!(w, ",\"why\":\"{why}\"")?;
+    }
+    writeln!(w, "}}")?;
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -143,6 +171,33 @@ mod tests {
             lines[2],
             r#"{"type":"pulse","t":12.5,"h":[1.2e-6,-3.4e-7,8e-8],"src":2}"#
         );
+    }
+
+    #[test]
+    fn events_follow_the_spec() {
+        let mut s = String::new();
+        write_event(&mut s, 80.2, "mark", None).unwrap();
+        write_event(&mut s, 81.0, "withheld", Some("overlap")).unwrap();
+        let lines: std::vec::Vec<&str> = s.lines().collect();
+        assert_eq!(lines[0], r#"{"type":"event","t":80.2,"kind":"mark"}"#);
+        assert_eq!(
+            lines[1],
+            r#"{"type":"event","t":81,"kind":"withheld","why":"overlap"}"#
+        );
+        let before = s.clone();
+        assert_eq!(
+            write_event(&mut s, 1.0, "a\"b", None),
+            Err(LogError::Invalid)
+        );
+        assert_eq!(
+            write_event(&mut s, 1.0, "gain", Some("x\ny")),
+            Err(LogError::Invalid)
+        );
+        assert_eq!(
+            write_event(&mut s, f64::NAN, "mark", None),
+            Err(LogError::NonFinite)
+        );
+        assert_eq!(s, before);
     }
 
     #[test]

@@ -5,7 +5,8 @@
 //! displacement since the previous pulse (true motion of a seeded `paper` scenario) and
 //! the attitude. Regenerate with
 //! `cargo run -p hal-sim --release -- budget-data --out firmware/src/bin/support/budget_data.rs`.
-use crate::bus::if_signal::{AnalogChain, AnalogInput, IF_HZ, IfSignal};
+use crate::bus::if_signal::{AnalogInput, IF_HZ, IfSignal};
+use crate::bus::run::{UnitCalibration, scenario_calibration, scenario_unit};
 use crate::physics::{M3, V3};
 use crate::scenario::{Preset, ScenarioConfig, simulate};
 use anyhow::Result;
@@ -28,7 +29,7 @@ fn triple(v: [f32; 3]) -> String {
 }
 
 /// The Rust source for `seed`'s steps.
-pub fn source(seed: u64) -> String {
+pub fn source(seed: u64) -> Result<String> {
     let sim = simulate(&ScenarioConfig::new(Preset::Paper, seed));
     let mut s = String::new();
     let _ = writeln!(
@@ -59,20 +60,21 @@ pub fn source(seed: u64) -> String {
         );
     }
     s.push_str("];\n");
-    if_window(&sim, &mut s);
-    s
+    if_window(&sim, &mut s)?;
+    Ok(s)
 }
 
 /// IF samples (8 kSPS) of a 0.5 s window around one mid-search pulse, as the ADC would
-/// deliver them behind the simulated analog chain, for the on-target DSP budget.
-fn if_window(sim: &crate::scenario::Simulation, s: &mut String) {
+/// deliver them behind the scenario's drawn unit, for the on-target DSP budget; the DSP
+/// is given the unit's bench calibration (a shipped unit), not the chain's exact values.
+fn if_window(sim: &crate::scenario::Simulation, s: &mut String) -> Result<()> {
     const FS: f64 = 8000.0;
     const N: usize = 4000;
     let pulses: Vec<f64> = sim.session.pulses().map(|p| p.t).collect();
     let Some(&tc) = pulses.get(pulses.len() / 2) else {
-        return;
+        anyhow::bail!("the scenario has no pulse");
     };
-    let chain = AnalogChain::default();
+    let chain = scenario_unit(sim.draw.config.seed).chain;
     let noise = &sim.draw.config.sensors.pulse;
     let mut input = IfSignal::new(
         &sim.world,
@@ -83,14 +85,15 @@ fn if_window(sim: &crate::scenario::Simulation, s: &mut String) {
         7,
     );
     let t0 = tc - 0.3;
-    let cal = chain.calibration();
+    let seed = sim.draw.config.seed;
+    let cal = scenario_calibration(seed, UnitCalibration::Bench)?;
     let h = sim
         .world
         .field_body(0, tc)
         .map_or([0.0; 3], |h| [h.x, h.y, h.z]);
     let _ = writeln!(
         s,
-        "\n/// Sample rate of [`IF_VOLTS`], Hz (IF {IF_HZ} Hz).\npub const IF_RATE_HZ: f32 = {FS:?};\n/// True field (A/m, body frame) of the pulse centred at {tc:.4} s in [`IF_VOLTS`] (overall sign arbitrary).\npub const IF_PULSE_H: [f32; 3] = {};\n/// The analog chain's calibration: gain A/m per V, offset V, phase rad.\npub const IF_CALIBRATION: ([f32; 3], [f32; 3], [f32; 3]) = ({}, {}, {});\n/// Coil voltages at the ADC from {t0:.4} s, one row per sample.\npub static IF_VOLTS: [[f32; 3]; {N}] = [",
+        "\n/// Sample rate of [`IF_VOLTS`], Hz (IF {IF_HZ} Hz).\npub const IF_RATE_HZ: f32 = {FS:?};\n/// True field (A/m, body frame) of the pulse centred at {tc:.4} s in [`IF_VOLTS`] (overall sign arbitrary).\npub const IF_PULSE_H: [f32; 3] = {};\n/// The calibration the DSP is given (the unit's bench calibration): gain A/m per V, offset V, phase rad.\npub const IF_CALIBRATION: ([f32; 3], [f32; 3], [f32; 3]) = ({}, {}, {});\n/// Coil voltages at the ADC from {t0:.4} s, one row per sample.\npub static IF_VOLTS: [[f32; 3]; {N}] = [",
         triple(h.map(|x| x as f32)),
         triple(cal.gain_a_per_m_per_v),
         triple(cal.offset_v),
@@ -105,10 +108,11 @@ fn if_window(sim: &crate::scenario::Simulation, s: &mut String) {
         );
     }
     s.push_str("];\n");
+    Ok(())
 }
 
 /// Writes the source file.
 pub fn run(args: &Args) -> Result<()> {
-    std::fs::write(&args.out, source(args.seed))?;
+    std::fs::write(&args.out, source(args.seed)?)?;
     Ok(())
 }

@@ -53,6 +53,10 @@ pub struct ReplayLine {
     /// Display status word.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub status: Option<String>,
+    /// What the display asks the rescuer to do now (`"probe here"`, `"lower to snow"`,
+    /// `"raise"`, `"lift"`); absent when nothing.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub prompt: Option<String>,
     /// Current estimate per victim; empty before initialization.
     pub victims: Vec<VictimEstimate>,
 }
@@ -73,6 +77,7 @@ pub trait Estimator {
             n_components: 0,
             arrow_deg: None,
             status: Some(status.to_string()),
+            prompt: None,
             victims: Vec::new(),
         }
     }
@@ -95,6 +100,7 @@ impl Estimator for NoEstimator {
             n_components: 0,
             arrow_deg: None,
             status: None,
+            prompt: None,
             victims: Vec::new(),
         }
     }

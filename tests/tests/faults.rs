@@ -447,17 +447,22 @@ fn window_with(
     span: (f64, f64),
 ) -> AdcWindow {
     let cfg = &sim.draw.config;
-    let chain = hal_sim::bus::if_signal::AnalogChain::default();
+    let unit = hal_sim::bus::run::scenario_unit(cfg.seed);
     let signal = antenna(
         &sim.world,
-        chain,
+        unit.chain,
         cfg.sensors.pulse.sigma_bkg_a_per_m,
         cfg.sensors.pulse.k_sen,
         cfg.seed,
     );
     adc_window(
         Disturbed::new(signal, disturbances, cfg.seed ^ 0xD15),
-        &chain,
+        // The shipped unit: its bench calibration, not its chain's exact values.
+        &hal_sim::bus::run::scenario_calibration(
+            cfg.seed,
+            hal_sim::bus::run::UnitCalibration::Bench,
+        )
+        .unwrap(),
         span,
         spi,
         rx,
@@ -610,7 +615,7 @@ fn emi_burst_gives_no_false_vectors_and_the_floor_recovers() {
     // vectors; after the burst the floor comes down and field pulses resume.
     let (sim, mut rx) = bus_world(45);
     let (a, b) = span_end(&sim);
-    let chain = hal_sim::bus::if_signal::AnalogChain::default();
+    let chain = hal_sim::bus::run::scenario_unit(sim.draw.config.seed).chain;
     let sigma_v = 300.0
         * hal_sim::bus::if_signal::sample_sigma(
             sim.draw.config.sensors.pulse.sigma_bkg_a_per_m,

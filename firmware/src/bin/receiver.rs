@@ -14,6 +14,7 @@
 //! | mark button (push button to ground, internal pull-up; polled at 100 Hz, debounced) | GPIO | PC6 (D6) |
 //! | fault LED (the Feather's red LED): lit while a sensor fault holds or the display is down | GPIO | PC1 (D13) |
 //! | buzzer (passive piezo): guidance tones ([`firmware::board::sound`]) | TIM4 CH3 PWM | PB8 (D9) |
+//! | sound button (push button to ground, internal pull-up; debounced): mute / unmute, a chirp confirms "on" | GPIO | PC2 (D12) |
 //! | battery voltage (the Feather's ½ divider on BAT, read once a second) | ADC1 IN3 | PA3 (on board) |
 //! | supervision: independent watchdog (1 s), cycle counter (progress times) | IWDG, DWT | – |
 //!
@@ -110,7 +111,8 @@ const PROGRESS_LIMIT_MS: [u64; 2] = [1000, 500];
 const RESET_REPORT_MS: u32 = 3000;
 /// I2C1's bus clock.
 const I2C_HZ: u32 = 400_000;
-/// Guidance tones on (the mute setting, until settings are stored in flash).
+/// Guidance tones on at boot (the sound button toggles them; not stored until settings
+/// live in flash).
 const SOUND_ON: bool = true;
 
 /// One simultaneous sample of the three coils.
@@ -550,6 +552,10 @@ fn main() -> ! {
         queue.split();
     // The mark button: flags the victim being guided to as found.
     let mut mark = MarkButton::new(gpioc.pc6.into_pull_up_input());
+    // The sound button: the same debounced press, on D12.
+    let mut sound_button = MarkButton::new(gpioc.pc2.into_pull_up_input());
+    let mut muted = !SOUND_ON;
+    let mut chirp_until_ms = 0u64;
     let mut drdy = gpioc.pc7.into_pull_up_input();
     drdy.make_interrupt_source(&mut syscfg);
     drdy.trigger_on_edge(&mut exti, Edge::Falling);
@@ -691,15 +697,27 @@ fn main() -> ! {
                 }
             }
             // The tone of the moment (10 ms edges at the tick).
-            let tone = sound::tone_at(
-                &SoundInput {
-                    status: shown.status,
-                    distance_m: shown.distance_m,
-                    fault,
-                    muted: !SOUND_ON,
-                },
-                ms_clock.now_ms(DWT::cycle_count()),
-            );
+            let now_ms = ms_clock.now_ms(DWT::cycle_count());
+            if sound_button.poll() {
+                muted = !muted;
+                if !muted {
+                    chirp_until_ms = now_ms + sound::CHIRP_MS;
+                }
+                defmt::info!("sound {=str}", if muted { "off" } else { "on" });
+            }
+            let tone = if now_ms < chirp_until_ms {
+                Some(sound::CHIRP_HZ)
+            } else {
+                sound::tone_at(
+                    &SoundInput {
+                        status: shown.status,
+                        distance_m: shown.distance_m,
+                        fault,
+                        muted,
+                    },
+                    now_ms,
+                )
+            };
             if tone != playing {
                 match tone {
                     Some(hz) => {

@@ -22,7 +22,7 @@
 //! | fault LED: the Feather's red LED, lit while a sensor fault holds (seen even when the display is the fault) | D13 | PC1 | GPIO output |
 //! | battery voltage, ½ of BAT through the Feather's 2 × 100 kΩ divider | — (on board) | PA3 | ADC1 IN3 |
 //! | buzzer (passive piezo to ground), guidance tones | D9 | PB8 | TIM4 CH3 PWM (AF2) |
-//! | second button (reserved, not read by this build) | D12 | PC2 | GPIO input |
+//! | sound button (to ground, internal pull-up): mutes and unmutes the tones | D12 | PC2 | GPIO input |
 //!
 //! Not used and kept free: D8/PC0 (NeoPixel), the 2 MB
 //! SPI flash (PB3/PB4/PB5, CS PA15), the microSD slot on SDIO (PC8–PC12, PD2; card detect
@@ -108,7 +108,7 @@ pub const ASSIGNMENTS: [Assignment; 13] = [
     a("fault LED", FAULT_LED, Site::Header("D13")),
     a("battery divider", BATTERY, Site::OnBoard("V_DIV")),
     a("buzzer", P('B', 8), Site::Header("D9")),
-    a("second button (reserved)", P('C', 2), Site::Header("D12")),
+    a("sound button", P('C', 2), Site::Header("D12")),
 ];
 
 /// The antenna ADC's chip select (D10).

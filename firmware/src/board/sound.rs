@@ -29,6 +29,11 @@ pub const FAULT_HZ: u32 = 400;
 pub const FAULT_PERIOD_MS: u64 = 2000;
 /// Part of a beep period the beep lasts.
 pub const BEEP_FRACTION: f32 = 0.35;
+/// The chirp that confirms "sound on" (unmuting in silence would otherwise give no sign),
+/// Hz.
+pub const CHIRP_HZ: u32 = 1000;
+/// How long the chirp lasts, ms.
+pub const CHIRP_MS: u64 = 100;
 
 /// What the sound says.
 #[derive(Debug, Clone, Copy, PartialEq)]

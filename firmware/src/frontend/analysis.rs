@@ -52,6 +52,8 @@ pub(crate) struct Analysis {
     pub offset_hz: f32,
     /// In-phase field vector (A/m), canonical sign.
     pub h: Vec3,
+    /// See [`Pulse::amplitude`](super::Pulse::amplitude).
+    pub amplitude: [C32; 3],
     /// Per-component noise standard deviation (A/m).
     pub sigma: f32,
     /// See [`Pulse::residual_fraction`](super::Pulse::residual_fraction).
@@ -297,6 +299,7 @@ pub(crate) fn analyse(
     let aligned = c.map(|z| z * rot);
     let mut h = Vec3::new(aligned[0].re, aligned[1].re, aligned[2].re);
     let q = Vec3::new(aligned[0].im, aligned[1].im, aligned[2].im);
+    let mut amplitude = aligned;
     if h.iter().fold(0.0f32, |m, v| {
         if libm::fabsf(*v) > libm::fabsf(m) {
             *v
@@ -306,6 +309,7 @@ pub(crate) fn analyse(
     }) < 0.0
     {
         h = -h;
+        amplitude = aligned.map(|z| z.scale(-1.0));
     }
 
     // Noise on each real component of c (see module docs): F/6 per block, averaged over n.
@@ -337,6 +341,7 @@ pub(crate) fn analyse(
         len: e - start,
         offset_hz: nu / cfg.block_s(),
         h,
+        amplitude,
         sigma: libm::sqrtf(var),
         residual_fraction,
         quadrature_fraction,

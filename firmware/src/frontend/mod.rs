@@ -321,6 +321,7 @@ impl Frontend {
                         sigma_a_per_m: 0.0,
                         residual_fraction: 0.0,
                         quadrature_fraction: 0.0,
+                        amplitude: [C32::ZERO; 3],
                         src: None,
                         measurement: PulseMeasurement::Truncated,
                     });
@@ -389,6 +390,7 @@ impl Frontend {
             sigma_a_per_m: a.sigma,
             residual_fraction: a.residual_fraction,
             quadrature_fraction: a.quadrature_fraction,
+            amplitude: a.amplitude,
             src,
             measurement,
         })

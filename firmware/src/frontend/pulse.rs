@@ -1,5 +1,6 @@
 //! What the front end reports for each received pulse.
 
+use super::C32;
 use crate::Vec3;
 
 /// The outcome of one pulse: a field vector, or why none is given.
@@ -39,6 +40,12 @@ pub struct Pulse {
     /// Energy in quadrature to the common phase of the coils as a fraction of the
     /// in-phase energy (≈0 for one transmitter).
     pub quadrature_fraction: f32,
+    /// The three coils' calibrated complex amplitudes (A/m) rotated onto their common
+    /// phase, with the sign of the reported vector: the real parts are the field vector,
+    /// the imaginary parts what is in quadrature (a channel's phase error shows there).
+    /// Given for overlapped and saturated pulses too (the bench calibration reads it);
+    /// zero for truncated ones.
+    pub amplitude: [C32; 3],
     /// Transmitter the pulse was attributed to by its period and carrier, if any.
     pub src: Option<u8>,
     /// The field vector or the reason it is withheld.

@@ -12,7 +12,9 @@
 //!   carrier offset with its sign; `φ_tx`: the transmitter's free-running carrier phase
 //!   (drawn once per transmitter);
 //! - `g_i`, `lag_i`, `off_i`: each channel's gain (A/m per V), phase lag at the IF and DC
-//!   offset — the [`AnalogChain`], whose [`Calibration`] the DSP is given;
+//!   offset — the unit's actual [`AnalogChain`], drawn about the board profile's nominal
+//!   values ([`super::unit`]); the DSP holds the nominal or a bench calibration, never
+//!   these exact values;
 //! - `n(t)`: white EMI background per coil, σ per sample `σ_bkg / √(2/N₇₀)` with
 //!   `N₇₀ = 0.070 s · f_s`: the per-component σ of a 70 ms pulse's demodulated amplitude is
 //!   then `σ_bkg` (the session-log's `pulse_noise.sigma_bkg_A_per_m`), as in the DSP's tests.
@@ -32,38 +34,45 @@ pub const IF_HZ: f64 = CARRIER_HZ - LO_HZ;
 /// Shortest pulse of the standard, s: `σ_bkg` is the per-component σ of a pulse this long.
 pub const REFERENCE_PULSE_S: f64 = 0.070;
 
-/// Gain, phase lag and offset of the three coil channels.
+/// Gain, phase lag and offset of the three coil channels: one unit's actual analog chain
+/// (see [`super::unit::Unit`], which draws it about the board profile's nominal values).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct AnalogChain {
-    /// Field per IF amplitude, A/m per V (negative: coil wired reversed).
+    /// Field per IF amplitude in the high range, A/m per V (negative: coil wired reversed).
     pub gain_a_per_m_per_v: [f64; 3],
-    /// Phase lag of each channel at the IF, rad.
+    /// Phase lag of each channel at the IF in the high range, rad.
     pub phase_rad: [f64; 3],
     /// DC offset at each ADC input, V.
     pub offset_v: [f64; 3],
-}
-
-impl Default for AnalogChain {
-    /// The simulated board: ≈2e-3 A/m per V (full scale 1.2 V at PGA gain 1 is ≈2.4e-3 A/m,
-    /// the field about 1.3 m from a strong beacon), coil y wired reversed, a few degrees of
-    /// phase mismatch, millivolt offsets.
-    fn default() -> Self {
-        Self {
-            gain_a_per_m_per_v: [2.0e-3, -2.1e-3, 1.9e-3],
-            phase_rad: [0.06, -0.04, 0.09],
-            offset_v: [1.5e-3, -0.8e-3, 0.5e-3],
-        }
-    }
+    /// How many times more field per volt the low range of the IF range switch gives.
+    pub low_range_ratio: [f64; 3],
+    /// Extra phase lag of each channel in the low range, rad.
+    pub low_range_phase_rad: [f64; 3],
 }
 
 impl AnalogChain {
-    /// The DSP's calibration of this chain (bench-measured, here exact).
-    pub fn calibration(&self) -> Calibration {
+    /// A chain whose parameters are exactly `cal`'s (the design values when `cal` is the
+    /// profile's nominal calibration).
+    pub fn from_calibration(cal: &Calibration) -> Self {
+        Self {
+            gain_a_per_m_per_v: cal.gain_a_per_m_per_v.map(f64::from),
+            phase_rad: cal.phase_rad.map(f64::from),
+            offset_v: cal.offset_v.map(f64::from),
+            low_range_ratio: cal.low_range_ratio.map(f64::from),
+            low_range_phase_rad: cal.low_range_phase_rad.map(f64::from),
+        }
+    }
+
+    /// This chain's exact parameters as a [`Calibration`]: the truth a calibration is
+    /// scored against. The DSP is never given it; it holds the profile's nominal
+    /// calibration or the unit's bench calibration.
+    pub fn true_calibration(&self) -> Calibration {
         Calibration {
             gain_a_per_m_per_v: self.gain_a_per_m_per_v.map(|g| g as f32),
             offset_v: self.offset_v.map(|x| x as f32),
             phase_rad: self.phase_rad.map(|x| x as f32),
-            ..Calibration::default()
+            low_range_ratio: self.low_range_ratio.map(|x| x as f32),
+            low_range_phase_rad: self.low_range_phase_rad.map(|x| x as f32),
         }
     }
 }

@@ -9,14 +9,19 @@
 //! - [`if_signal`]: the three coils' IF voltages from the world's fields.
 //! - [`ads131m04`]: the emulated ADC (command protocol, framing, CRC, DRDY, saturation).
 //! - [`imu`]: the emulated BMI160 and LSM303AGR on one I2C bus.
+//! - [`unit`]: one simulated unit's actual parameters, drawn about the board profile's
+//!   nominal values with its tolerances.
+//! - [`bench`]: the antenna's bench calibration on an emulated unit.
 //! - [`run`]: `simulate --bus` — the whole chain into a session log, and the comparison
 //!   of its pulses with the measurement level's.
 //!
 //! All chips run on one [`SimClock`] that the simulation loop advances.
 pub mod ads131m04;
+pub mod bench;
 pub mod if_signal;
 pub mod imu;
 pub mod run;
+pub mod unit;
 
 use std::cell::Cell;
 use std::rc::Rc;

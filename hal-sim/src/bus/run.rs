@@ -12,8 +12,9 @@
 //!   each vector with its largest component positive, so the log is always
 //!   sign-ambiguous.
 use super::ads131m04::ads131m04;
-use super::if_signal::{AnalogChain, IfSignal};
+use super::if_signal::IfSignal;
 use super::imu::{ImuBus, ImuSampler};
+use super::unit::Unit;
 use super::{NoDelay, SimClock};
 use crate::physics::V3;
 use crate::scenario::{ScenarioConfig, Simulation, merge, simulate};
@@ -22,13 +23,45 @@ use crate::session::{Imu, Pulse, Session};
 use anyhow::{Context, Result, anyhow};
 use firmware::board::REFERENCE;
 use firmware::drivers::ads131m04::{Ads131m04, Error as AdcError};
-use firmware::frontend::{Frontend, FrontendConfig, FrontendStats};
+use firmware::frontend::{Calibration, Frontend, FrontendStats};
 
 /// Seed stream of the measurement-level IMU noise (see `scenario::simulate`).
 const IMU_STREAM: u64 = 2;
 /// Mixed into the scenario seed for the antenna's noise (kept apart from the scenario's
 /// own streams).
 const ANTENNA_SEED: u64 = 0xA27E_77A0_5EED_0005;
+/// Mixed into the scenario seed for the unit's drawn parameters.
+const UNIT_SEED: u64 = 0x0B0A_2D00_5EED_0001;
+/// Mixed into the scenario seed for the unit's bench session.
+const BENCH_SEED: u64 = 0xBE9C_4000_5EED_0002;
+
+/// The unit the bus-level simulation of scenario seed `seed` runs: drawn about the
+/// reference board's nominal values with its tolerances.
+pub fn scenario_unit(seed: u64) -> Unit {
+    Unit::draw(&REFERENCE, seed ^ UNIT_SEED)
+}
+
+/// What a unit's firmware knows of its own analog chain.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum UnitCalibration {
+    /// The board profile's nominal calibration: a unit that has not been on the bench.
+    Nominal,
+    /// The unit's bench calibration (`docs/antenna-bench-calibration.md`), run on the
+    /// emulated unit from the nominal one: a shipped unit.
+    Bench,
+}
+
+/// The calibration the DSP of scenario seed `seed`'s unit holds.
+pub fn scenario_calibration(seed: u64, mode: UnitCalibration) -> Result<Calibration> {
+    let nominal = REFERENCE.analog.nominal;
+    match mode {
+        UnitCalibration::Nominal => Ok(nominal),
+        UnitCalibration::Bench => {
+            super::bench::bench_calibrate(&scenario_unit(seed), &nominal, seed ^ BENCH_SEED)
+                .map(|fit| fit.calibration)
+        }
+    }
+}
 
 /// A bus-level simulation and what it is compared with.
 #[derive(Debug, Clone)]
@@ -48,9 +81,9 @@ pub struct BusRun {
 
 use crate::scenario::stream;
 
-/// Runs the scenario of `cfg` through the emulated chips and the firmware's drivers and DSP
-/// behind the analog chain `chain`.
-pub fn simulate_bus(cfg: &ScenarioConfig, chain: &AnalogChain) -> Result<BusRun> {
+/// Runs the scenario of `cfg` through the emulated chips of `unit` and the firmware's
+/// drivers and DSP, the DSP holding the calibration `cal` (what the unit knows of itself).
+pub fn simulate_bus(cfg: &ScenarioConfig, unit: &Unit, cal: &Calibration) -> Result<BusRun> {
     let mut sim = simulate(cfg);
     let measurement = sim.session.clone();
     let world = &sim.world;
@@ -62,7 +95,7 @@ pub fn simulate_bus(cfg: &ScenarioConfig, chain: &AnalogChain) -> Result<BusRun>
     let fs = f64::from(adc_cfg.data_rate_hz(super::ads131m04::F_CLKIN_HZ as f32));
     let signal = IfSignal::new(
         world,
-        *chain,
+        unit.chain,
         cfg.sensors.pulse.sigma_bkg_a_per_m,
         cfg.sensors.pulse.k_sen,
         fs,
@@ -76,12 +109,8 @@ pub fn simulate_bus(cfg: &ScenarioConfig, chain: &AnalogChain) -> Result<BusRun>
     adc.configure(&adc_cfg)
         .map_err(|e| anyhow!("ADC configure: {e:?}"))?;
     adc.set_drdy_poll_limit(1);
-    let mut frontend = Frontend::new(FrontendConfig {
-        sample_rate_hz: fs as f32,
-        calibration: chain.calibration(),
-        ..FrontendConfig::default()
-    })
-    .map_err(|e| anyhow!("frontend configuration: {e:?}"))?;
+    let mut frontend = Frontend::new(REFERENCE.frontend_config(cal))
+        .map_err(|e| anyhow!("frontend configuration: {e:?}"))?;
 
     // IMU chips.
     let model = ImuModel::new(cfg.sensors.imu.clone(), stream(cfg.seed, IMU_STREAM));
@@ -282,8 +311,16 @@ pub fn compare_pulses(run: &BusRun, sigma_bkg: f64, k_sen: f64) -> PulseComparis
     }
 }
 
-/// The bus-level simulation of `cfg` with the default analog chain, with context on error.
+/// The bus-level simulation of `cfg` on the scenario's drawn unit ([`scenario_unit`])
+/// with its bench calibration (a shipped unit), with context on error.
 pub fn simulate_bus_default(cfg: &ScenarioConfig) -> Result<BusRun> {
-    simulate_bus(cfg, &AnalogChain::default())
+    simulate_bus_with(cfg, UnitCalibration::Bench)
+}
+
+/// The bus-level simulation of `cfg` on the scenario's drawn unit holding the calibration
+/// `mode` says, with context on error.
+pub fn simulate_bus_with(cfg: &ScenarioConfig, mode: UnitCalibration) -> Result<BusRun> {
+    let cal = scenario_calibration(cfg.seed, mode)?;
+    simulate_bus(cfg, &scenario_unit(cfg.seed), &cal)
         .with_context(|| format!("bus-level simulation of {:?} seed {}", cfg.preset, cfg.seed))
 }

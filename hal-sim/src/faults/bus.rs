@@ -21,7 +21,7 @@ use embedded_hal::i2c::{ErrorKind as I2cErrorKind, NoAcknowledgeSource};
 use embedded_hal::spi::ErrorKind as SpiErrorKind;
 use firmware::app::{AppError, DisplayModel, Receiver};
 use firmware::drivers::ads131m04::{Ads131m04, Config, Error as AdcError};
-use firmware::frontend::{Frontend, FrontendConfig};
+use firmware::frontend::{Calibration, Frontend, FrontendConfig};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::convert::Infallible;
@@ -309,12 +309,13 @@ pub struct AdcWindow {
     pub clipped: u64,
 }
 
-/// Runs the world's antenna signal `input` (behind `chain`) through the emulated
-/// ADS131M04 on a [`FaultySpi`] (`spi_window`, `spi_fault`), the firmware's driver, front
-/// end and `rx` ([`Receiver::on_adc_sample`]) from `from_s` to `to_s` of world time.
+/// Runs the world's antenna signal `input` through the emulated ADS131M04 on a
+/// [`FaultySpi`] (`spi_window`, `spi_fault`), the firmware's driver, front end (holding
+/// the calibration `cal`: the unit's, not its chain's exact values) and `rx`
+/// ([`Receiver::on_adc_sample`]) from `from_s` to `to_s` of world time.
 pub fn adc_window<A: AnalogInput>(
     input: A,
-    chain: &AnalogChain,
+    cal: &Calibration,
     (from_s, to_s): (f64, f64),
     (spi_window, spi_fault): (FaultWindow, SpiFault),
     rx: &mut Receiver,
@@ -333,7 +334,7 @@ pub fn adc_window<A: AnalogInput>(
     adc.set_drdy_poll_limit(1);
     let mut frontend = Frontend::new(FrontendConfig {
         sample_rate_hz: fs as f32,
-        calibration: chain.calibration(),
+        calibration: *cal,
         ..FrontendConfig::default()
     })
     .map_err(|e| anyhow::anyhow!("front end: {e:?}"))?;
