@@ -558,7 +558,7 @@ impl VictimBank {
 
     /// Moves slot `i`'s components to the end of the pool (one in-place rotation of the
     /// components after them), where its mixture can grow.
-    fn move_to_end(&mut self, i: usize) {
+    fn to_end(&mut self, i: usize) {
         let Some(v) = self.slots.get(i) else {
             return;
         };
@@ -582,7 +582,7 @@ impl VictimBank {
 
     /// Gives slot `i`'s components back to the pool (its mixture forgotten).
     fn release(&mut self, i: usize) {
-        self.move_to_end(i);
+        self.to_end(i);
         if let Some(v) = self.slots.get_mut(i) {
             self.pool.truncate(usize::from(v.start));
             v.state.forget();
@@ -593,7 +593,7 @@ impl VictimBank {
     /// Shrinks slot `i`'s mixture to at most `cap` components, dropping the lightest
     /// (the weights renormalized), and moves it to the end of the pool.
     fn trim(&mut self, i: usize, cap: usize) {
-        self.move_to_end(i);
+        self.to_end(i);
         let Some(v) = self.slots.get_mut(i) else {
             return;
         };
@@ -674,10 +674,10 @@ impl VictimBank {
             if self.slots.get(i).is_some_and(|v| usize::from(v.len) > room) {
                 self.trim(i, room);
             }
-            self.move_to_end(i);
+            self.to_end(i);
             room
         } else {
-            self.move_to_end(i);
+            self.to_end(i);
             POOL_CAPACITY
                 .saturating_sub(self.held_by_others(i))
                 .min(VICTIM_FLOOR)

@@ -425,7 +425,6 @@ impl SogState {
     /// that count.
     #[cold]
     #[inline(never)]
-    #[allow(clippy::too_many_arguments)] // private: the parts of one step, kept apart
     fn withhold(
         &mut self,
         comps: &mut impl Store,

@@ -10,17 +10,13 @@ use super::gaussian::Component;
 use core::ops::{Deref, DerefMut};
 use heapless::Vec;
 
-/// A store had no room for another component.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) struct Full;
-
 /// A resizable slice of components with a fixed capacity (the subset of
 /// `heapless::Vec`'s API the mixture operations use).
 pub(crate) trait Store: Deref<Target = [Component]> + DerefMut {
     /// Components this store can hold now.
     fn capacity(&self) -> usize;
-    /// Appends `c`; `Err(Full)` (nothing changed) when there is no room.
-    fn push(&mut self, c: Component) -> Result<(), Full>;
+    /// Appends `c`, or gives it back when full.
+    fn push(&mut self, c: Component) -> Result<(), Component>;
     /// Removes component `i` (the last one takes its place); `None` if out of range.
     fn remove_swap(&mut self, i: usize) -> Option<Component>;
     /// Keeps the first `n` components.
@@ -54,8 +50,8 @@ impl<const N: usize> Store for Vec<Component, N> {
         N
     }
 
-    fn push(&mut self, c: Component) -> Result<(), Full> {
-        Vec::push(self, c).map_err(|_| Full)
+    fn push(&mut self, c: Component) -> Result<(), Component> {
+        Vec::push(self, c)
     }
 
     fn remove_swap(&mut self, i: usize) -> Option<Component> {
@@ -104,11 +100,11 @@ impl<const P: usize> Store for PoolShare<'_, P> {
         self.cap
     }
 
-    fn push(&mut self, c: Component) -> Result<(), Full> {
+    fn push(&mut self, c: Component) -> Result<(), Component> {
         if self.pool.len() >= self.start + self.cap {
-            return Err(Full);
+            return Err(c);
         }
-        self.pool.push(c).map_err(|_| Full)
+        self.pool.push(c)
     }
 
     fn remove_swap(&mut self, i: usize) -> Option<Component> {
