@@ -14,8 +14,8 @@
 //! ([`DisplayModel::list`]).
 //!
 //! # Memory: keep one instance, never move it
-//! The victim bank is ≈ 64 KB ([`crate::victims::MAX_VICTIMS`] mixtures sharing a pool
-//! of [`crate::victims::POOL_CAPACITY`] components), so a
+//! The victim bank is ≈ 85 KB ([`crate::victims::MAX_VICTIMS`] mixtures of
+//! [`crate::victims::VICTIM_CAPACITY`] components), so a
 //! [`Receiver`] must not be passed by value or copied around on the board (the stack is
 //! far smaller). The board keeps exactly one in a `static` in `.uninit` SRAM (a `NOLOAD`
 //! section that the runtime does not zero: its owner initializes it):
@@ -40,7 +40,7 @@ use core::mem::MaybeUninit;
 use crate::Vec3;
 use crate::classic::{ClassicConfig, ClassicError, ClassicSearch};
 use crate::estimate::{
-    self, Attitude, EstimateError, MixtureView, SogConfig, StepOutcome, VictimEstimate,
+    self, Attitude, EstimateError, Estimator, SogConfig, StepOutcome, VictimEstimate,
 };
 use crate::frame::rotation_from_rpy;
 use crate::frontend::{Frontend, FrontendError, PulseMeasurement};
@@ -49,7 +49,7 @@ use crate::guidance::{
     to_degrees_wrapped,
 };
 use crate::motion::{Motion, MotionConfig, MotionError};
-use crate::victims::{MAX_VICTIMS, MotionCut, Victim, VictimBank};
+use crate::victims::{MAX_VICTIMS, MotionCut, Victim, VictimBank, VictimSog};
 
 /// A target whose own pulses have not come for this long (s) gives way to a heard
 /// unmarked victim: several signal timeouts, longer than most overlaps of two pulse
@@ -295,7 +295,7 @@ fn classic_config(cfg: &AppConfig) -> ClassicConfig {
 
 impl Receiver {
     /// A receiver waiting for its first samples; `InvalidConfig` when the filter refuses
-    /// the configuration. On the board use [`Receiver::emplace`] instead (no 67 KB move).
+    /// the configuration. On the board use [`Receiver::emplace`] instead (no 88 KB move).
     pub fn new(cfg: AppConfig) -> Result<Self, AppError> {
         Self::check_config(&cfg)?;
         Ok(Self::new_checked(cfg))
@@ -303,7 +303,7 @@ impl Receiver {
 
     /// Whether [`Receiver::new`] accepts `cfg`, without building anything.
     fn check_config(cfg: &AppConfig) -> Result<(), AppError> {
-        VictimBank::check_config(&cfg.sog)?;
+        VictimSog::check_config(&cfg.sog)?;
         if cfg.mode == SearchMode::Classic {
             ClassicSearch::new(classic_config(cfg))?;
         }
@@ -342,7 +342,7 @@ impl Receiver {
         cfg: AppConfig,
     ) -> Result<&mut Receiver, AppError> {
         // Checked first, then built infallibly into the slot: a `Result<Receiver>`
-        // temporary would put the whole ≈ 67 KB receiver on the stack.
+        // temporary would put the whole ≈ 88 KB receiver on the stack.
         Self::check_config(&cfg)?;
         Ok(slot.write(Self::new_checked(cfg)))
     }
@@ -370,9 +370,9 @@ impl Receiver {
         &self.cfg
     }
 
-    /// The target victim's SOGs mixture (the first slot's without a target), read-only,
+    /// The target victim's SOGs filter (the first slot's without a target), read-only,
     /// e.g. to plot its components.
-    pub fn filter(&self) -> MixtureView<'_> {
+    pub fn filter(&self) -> &VictimSog {
         self.bank.filter(self.target.unwrap_or(0))
     }
 
@@ -624,10 +624,7 @@ impl Receiver {
         // height now, lowered or not (with several victims, mixtures start all along the
         // search, also while the receiver is low).
         self.bank.set_receiver_height(self.height_m());
-        // The pool serves the target first; a pulse with no target yet (its victim
-        // becomes the target below) is the one searched for.
-        let target = self.target.filter(|&i| self.bank.get(i).is_some());
-        let stepped = self.bank.step(slot, src, &cut, &attitude, &pulse, target);
+        let stepped = self.bank.step(slot, src, &cut, &attitude, &pulse);
         let (report, own) = match stepped {
             Ok(r) => r,
             Err(e) => {
@@ -924,9 +921,9 @@ mod tests {
 
     #[test]
     fn fits_in_sram_beside_the_stack_with_four_victims() {
-        // 128 KB SRAM minus a 56 KB stack (high-water ≈ 25 KB in the QEMU soak).
+        // 128 KB SRAM minus a 36 KB stack (high-water ≈ 25 KB in the QEMU soak).
         let bytes = core::mem::size_of::<Receiver>();
-        assert!(bytes <= 72 * 1024, "Receiver is {bytes} bytes");
+        assert!(bytes <= 92 * 1024, "Receiver is {bytes} bytes");
     }
 
     #[test]

@@ -1,26 +1,11 @@
-//! Several buried transmitters: one SOGs mixture per victim, sharing one pool of
-//! components.
+//! Several buried transmitters: one SOGs mixture per victim, sharing a fixed capacity.
 //!
 //! The front end attributes every pulse to a transmitter track (`src`, see
 //! [`crate::frontend::TransmitterTracker`]). Each track that is heard gets a slot of the
-//! [`VictimBank`]: its own robocentric SOGs mixture (its bookkeeping, [`SogState`], and
-//! its share of the bank's component pool), the receiver's displacement accumulated
-//! since that victim's last pulse ([`Pending`]) and its list state (number, marked). A
-//! pulse updates only its own victim's mixture, so the cost of a pulse is that of one
-//! filter step, whatever the number of victims.
-//!
-//! # One pool of components, shared
-//! The mixtures take their components from one pool of [`POOL_CAPACITY`]. Every other
-//! victim keeps at most [`VICTIM_FLOOR`] = [`POOL_CAPACITY`] / [`MAX_VICTIMS`] and has
-//! that much reserved; the victim being searched for (the guidance's target, or the only
-//! one heard) may take all the rest. So one victim gets the whole pool — the 240
-//! components of the single filter whose accuracy `hal-sim/reports/accuracy.md` reports
-//! and whose worst step the QEMU budget asserts — two get 180 + 60, four 60 each. A new
-//! victim's first pulse takes its floor from the target's lightest components; after
-//! that, another victim's pulse never touches the target's mixture. The victims'
-//! components lie packed one after the other; the victim of a pulse is moved to the
-//! pool's end (one in-place rotation) so that its mixture can grow there while the
-//! others stay as they are.
+//! [`VictimBank`]: its own robocentric SOGs filter ([`VictimSog`]), the receiver's
+//! displacement accumulated since that victim's last pulse ([`Pending`]) and its list
+//! state (number, marked). A pulse updates only its own victim's mixture, so the cost of
+//! a pulse is that of one filter step, whatever the number of victims.
 //!
 //! # Why the displacement is composed per victim
 //! The filter of IROS 2006 is robocentric: each step takes the receiver's motion since
@@ -31,19 +16,19 @@
 //! two motions, with first-order covariance propagation.
 //!
 //! # Memory budget (STM32F405: 64 KB CCM + 128 KB SRAM)
-//! [`MAX_VICTIMS`] = 4 slots (the front end tracks up to [`crate::frontend::MAX_TRACKS`])
-//! sharing [`POOL_CAPACITY`] = 240 components × 264 B = 63 360 B. The pool's size is set
-//! by the time budget, not by RAM: one victim's step over the whole pool must stay
-//! within 50 ms (8.4 M instructions at 168 MHz, asserted under QEMU by `qemu_budget`'s
-//! application step), and 240 components take ≈ 7.3 M. The receiver application
-//! (≈ 67 KB with this bank) lives in SRAM on the board; the ADC sample queue (32 KB) and
-//! the front end live in the 64 KB CCM instead, which leaves ≈ 60 KB of SRAM for the
-//! stack (high-water ≈ 25 KB, `hal-sim/reports/reliability.md`). Before the pool each
-//! victim had a fixed 80 (320 in all, ≈ 88 KB): a lone victim then had a third of what
-//! the single filter has (56 per victim had lost accuracy further: probe error median
-//! 0.088 → 0.097 m, and a 20 s transmitter silence broke the estimate). The
-//! re-association check runs on the stack with one copy of the motion pipeline and no
-//! copy of a mixture (`MixtureView::explains` is read-only).
+//! [`MAX_VICTIMS`] = 4 slots (the front end tracks up to [`crate::frontend::MAX_TRACKS`]) of
+//! [`VICTIM_CAPACITY`] = 80 components × 264 B: 84 480 B of components (320 in all).
+//! The receiver application (≈ 88 KB with this bank) lives in SRAM on the board; the ADC
+//! sample queue (32 KB) and the front end live in the 64 KB CCM instead, which leaves
+//! ≥ 36 KB of SRAM for the stack (high-water ≈ 25 KB, `hal-sim/reports/reliability.md`).
+//! 56 components per victim (all four in CCM) was tried first: a single victim's rescue
+//! lost accuracy (probe error median 0.088 → 0.097 m, max 0.71 → 0.87 m) and a 20 s
+//! transmitter silence mid-search broke the estimate (3.2 m final error, fault test
+//! `transmitter_off_shows_no_signal_keeps_the_estimate_and_recovers`), which 80 holds.
+//! Issue 9's second round added 8 B per slot (the steps and standing flag of each
+//! victim's pending interval, for its floors) and 4 B per bank (last overlap time):
+//! 36 B in all; the re-association check runs on the stack with one copy of the motion
+//! pipeline and no copy of a filter (`SogFilter::explains` is read-only).
 //!
 //! # Track identity and the list's capacity
 //! A front end may give one transmitter several track ids (after a long overlap or
@@ -55,8 +40,7 @@
 
 use crate::Vec3;
 use crate::estimate::{
-    Attitude, Component, Displacement, EstimateError, MixtureView, PoolShare, Pulse, SogConfig,
-    SogState, StepReport, Store, VictimEstimate, check_inputs, normalize,
+    Attitude, Displacement, EstimateError, Estimator, Pulse, SogConfig, SogFilter, StepReport,
 };
 use crate::frame::{Rpy, compose_rpy, rotation_from_rpy, rotation_partials};
 use crate::motion::PdrNoise;
@@ -65,20 +49,11 @@ use nalgebra::SMatrix;
 /// Victims followed at once (the front end may track more transmitters, see
 /// [`crate::frontend::MAX_TRACKS`]; its dormant tracks keep their ids).
 pub const MAX_VICTIMS: usize = 4;
-/// Components of all victims' mixtures together (the pool one victim may take whole;
-/// see the memory budget above).
-pub const POOL_CAPACITY: usize = crate::estimate::SOG_CAPACITY;
-/// Components a victim other than the one searched for may keep, and is always given
-/// room for: an equal share of the pool among [`MAX_VICTIMS`].
-pub const VICTIM_FLOOR: usize = POOL_CAPACITY / MAX_VICTIMS;
-/// The component pool.
-type Pool = heapless::Vec<Component, POOL_CAPACITY>;
-
-/// A component count or pool index as stored in a slot (the pool holds far fewer than
-/// `u16::MAX`).
-fn v_len(n: usize) -> u16 {
-    u16::try_from(n).unwrap_or(u16::MAX)
-}
+/// Components per victim's mixture (four of them and the rest of the application fit
+/// in SRAM beside a ≥ 36 KB stack; see the memory budget above).
+pub const VICTIM_CAPACITY: usize = 80;
+/// The per-victim filter.
+pub type VictimSog = SogFilter<VICTIM_CAPACITY>;
 /// An unmarked victim not heard for this long (s) is dropped from the list (its track
 /// is lost: out of range or switched off). As long as the front end keeps a dormant
 /// track's id ([`crate::frontend::DORMANT_S`]), so that it comes back to its mixture.
@@ -221,13 +196,7 @@ pub struct MotionCut {
 #[derive(Debug, Clone)]
 pub struct Victim {
     src: Option<u8>,
-    /// Its mixture's bookkeeping; the components are `len` of the pool from `start`.
-    state: SogState,
-    start: u16,
-    len: u16,
-    /// The mixture's belief after its last change (kept so that reading it needs no
-    /// access to the pool).
-    estimate: Option<VictimEstimate>,
+    filter: VictimSog,
     pending: Pending,
     last_t: f32,
     /// Attitude of the receiver at this victim's last pulse (to bring its estimate,
@@ -244,10 +213,7 @@ impl Victim {
     fn empty(cfg: SogConfig) -> Self {
         Self {
             src: None,
-            state: SogState::new_checked(cfg),
-            start: 0,
-            len: 0,
-            estimate: None,
+            filter: VictimSog::new_checked(cfg),
             pending: Pending::zero(),
             last_t: 0.0,
             rpy_last: Rpy::zeros(),
@@ -272,21 +238,15 @@ impl Victim {
     /// [`REASSOCIATE_SIGMA_FRACTION`] of its horizontal distance. A broad mixture (early
     /// flux-line phase) explains a pulse from anywhere around.
     fn localized(&self) -> bool {
-        self.estimate.is_some_and(|e| {
+        self.filter.estimate().is_some_and(|e| {
             let sigma = libm::sqrtf((e.cov.m11 + e.cov.m22).max(0.0));
             sigma <= REASSOCIATE_SIGMA_FRACTION * e.p.xy().norm()
         })
     }
 
-    /// This victim's belief (its mixture's [`crate::estimate::Estimator::estimate`]);
-    /// `None` before its mixture is initialized.
-    pub fn estimate(&self) -> Option<VictimEstimate> {
-        self.estimate
-    }
-
-    /// Components in this victim's mixture.
-    pub fn components(&self) -> usize {
-        usize::from(self.len)
+    /// This victim's mixture.
+    pub fn filter(&self) -> &VictimSog {
+        &self.filter
     }
 
     /// Whether the rescuer marked this victim as found.
@@ -331,20 +291,17 @@ impl Victim {
     /// The estimate minus the motion (`translation` scaled by the estimated scale, plus
     /// the `absolute` part) in the receiver's axes at this victim's last pulse.
     fn position_moved(&self, translation: &Vec3, absolute: &Vec3) -> Option<Vec3> {
-        let e = self.estimate?;
+        let e = self.filter.estimate()?;
         let r = rotation_from_rpy(&self.rpy_last);
         let p = e.p - r * (translation * e.scale + absolute);
         p.iter().all(|v| v.is_finite()).then_some(p)
     }
 }
 
-/// The fixed set of victim slots and their component pool (see the module docs for
-/// the memory budget).
+/// The fixed set of victim slots (see the module docs for the memory budget).
 #[derive(Debug, Clone)]
 pub struct VictimBank {
     slots: [Victim; MAX_VICTIMS],
-    /// The components of every victim's mixture, packed (see the module docs).
-    pool: Pool,
     /// Time of the last pulse the front end withheld as an overlap (s).
     withheld_t: f32,
 }
@@ -352,32 +309,18 @@ pub struct VictimBank {
 impl VictimBank {
     /// An empty bank whose filters use `cfg`, or `InvalidConfig`.
     pub fn new(cfg: SogConfig) -> Result<Self, EstimateError> {
-        Self::check_config(&cfg)?;
+        VictimSog::check_config(&cfg)?;
         Ok(Self::new_checked(cfg))
     }
 
-    /// Whether [`VictimBank::new`] accepts `cfg` (`InvalidConfig` if not).
-    pub fn check_config(cfg: &SogConfig) -> Result<(), EstimateError> {
-        SogState::check_config(cfg, VICTIM_FLOOR)
-    }
-
-    /// Builds a bank in `slot` (e.g. a `static` in `.uninit` RAM) and returns it, or
-    /// `InvalidConfig`: never a whole bank on the stack.
-    pub fn emplace(
-        slot: &mut core::mem::MaybeUninit<Self>,
-        cfg: SogConfig,
-    ) -> Result<&mut Self, EstimateError> {
-        Self::check_config(&cfg)?;
-        Ok(slot.write(Self::new_checked(cfg)))
-    }
-
     /// [`VictimBank::new`] for a configuration the filter accepted: infallible and built
-    /// slot by slot, so the ≈ 64 KB bank can be built in its final place (see
+    /// slot by slot, so the ≈ 85 KB bank can be built in its final place (see
     /// [`crate::app::Receiver::emplace`]) without a whole copy on the stack.
     #[inline(always)]
     pub(crate) fn new_checked(cfg: SogConfig) -> Self {
-        // An array literal of element constructors: the compiler writes each field
-        // straight into the destination; the pool's storage is left uninitialized.
+        // An array literal of element constructors (not `from_fn` or clones, which build
+        // each ≈ 21 KB element on the stack and copy it): the compiler writes each field
+        // straight into the destination.
         Self {
             slots: [
                 Victim::empty(cfg),
@@ -385,7 +328,6 @@ impl VictimBank {
                 Victim::empty(cfg),
                 Victim::empty(cfg),
             ],
-            pool: heapless::Vec::new(),
             withheld_t: f32::NEG_INFINITY,
         }
     }
@@ -400,19 +342,17 @@ impl VictimBank {
     }
 
     /// The receiver's tracked height above the snow (m) for every filter's next
-    /// initialization (see [`SogState::set_receiver_height`]).
+    /// initialization (see [`VictimSog::set_receiver_height`]).
     pub fn set_receiver_height(&mut self, height_m: f32) {
         for v in self.slots.iter_mut() {
-            v.state.set_receiver_height(height_m);
+            v.filter.set_receiver_height(height_m);
         }
     }
 
     /// Empties every slot.
     pub fn reset(&mut self) {
-        self.pool.clear();
         for v in self.slots.iter_mut() {
-            v.state.forget();
-            (v.start, v.len, v.estimate) = (0, 0, None);
+            v.filter.reset();
             v.pending = Pending::zero();
             v.active = false;
             v.marked = false;
@@ -436,23 +376,10 @@ impl VictimBank {
         self.len() == 0
     }
 
-    /// The mixture of slot `i` (empty when the slot is free; slot 0's for a bad index).
-    pub fn filter(&self, i: usize) -> MixtureView<'_> {
+    /// The filter of slot `i` (empty when the slot is free; slot 0's for a bad index).
+    pub fn filter(&self, i: usize) -> &VictimSog {
         let v = self.slots.get(i).unwrap_or(&self.slots[0]);
-        MixtureView::new(&v.state, self.components_of(v))
-    }
-
-    /// The components of `v`'s mixture in the pool.
-    fn components_of(&self, v: &Victim) -> &[Component] {
-        let start = usize::from(v.start);
-        self.pool
-            .get(start..start + usize::from(v.len))
-            .unwrap_or(&[])
-    }
-
-    /// Components in the pool, all victims together.
-    pub fn pool_len(&self) -> usize {
-        self.pool.len()
+        &v.filter
     }
 
     /// The victim in slot `i`, if any.
@@ -517,8 +444,7 @@ impl VictimBank {
             else {
                 continue;
             };
-            let view = MixtureView::new(&v.state, self.components_of(v));
-            if view.explains(&own.d, attitude, pulse) == Some(true)
+            if v.filter.explains(&own.d, attitude, pulse) == Some(true)
                 && best.is_none_or(|(_, n)| v.pulses > n)
             {
                 best = Some((i, v.pulses));
@@ -550,138 +476,9 @@ impl VictimBank {
             {
                 v.active = false;
                 n += 1;
-                self.release(i);
             }
         }
         n
-    }
-
-    /// Moves slot `i`'s components to the end of the pool (one in-place rotation of the
-    /// components after them), where its mixture can grow.
-    fn to_end(&mut self, i: usize) {
-        let Some(v) = self.slots.get(i) else {
-            return;
-        };
-        let (start, len) = (usize::from(v.start), usize::from(v.len));
-        let total = self.pool.len();
-        if start + len >= total {
-            return;
-        }
-        if let Some(tail) = self.pool.get_mut(start..total) {
-            tail.rotate_left(len);
-        }
-        for v in self.slots.iter_mut() {
-            if usize::from(v.start) > start {
-                v.start = v.start.saturating_sub(v_len(len));
-            }
-        }
-        if let Some(v) = self.slots.get_mut(i) {
-            v.start = v_len(total - len);
-        }
-    }
-
-    /// Gives slot `i`'s components back to the pool (its mixture forgotten).
-    fn release(&mut self, i: usize) {
-        self.to_end(i);
-        if let Some(v) = self.slots.get_mut(i) {
-            self.pool.truncate(usize::from(v.start));
-            v.state.forget();
-            (v.start, v.len, v.estimate) = (v_len(self.pool.len()), 0, None);
-        }
-    }
-
-    /// Shrinks slot `i`'s mixture to at most `cap` components, dropping the lightest
-    /// (the weights renormalized), and moves it to the end of the pool.
-    fn trim(&mut self, i: usize, cap: usize) {
-        self.to_end(i);
-        let Some(v) = self.slots.get_mut(i) else {
-            return;
-        };
-        let start = usize::from(v.start);
-        let mut share = PoolShare::new(&mut self.pool, start, POOL_CAPACITY);
-        if share.len() > cap {
-            while share.len() > cap {
-                let lightest = share
-                    .iter()
-                    .enumerate()
-                    .min_by(|a, b| a.1.log_w.total_cmp(&b.1.log_w))
-                    .map(|(k, _)| k);
-                match lightest {
-                    Some(k) => {
-                        share.remove_swap(k);
-                    }
-                    None => break,
-                }
-            }
-            normalize(&mut share);
-        }
-        v.len = v_len(share.len());
-        v.estimate = v.state.estimate(&share);
-    }
-
-    /// Components of every slot but `i`.
-    fn held_by_others(&self, i: usize) -> usize {
-        self.slots
-            .iter()
-            .enumerate()
-            .filter(|(j, _)| *j != i)
-            .map(|(_, v)| usize::from(v.len))
-            .sum()
-    }
-
-    /// Room for slot `i`'s mixture before its step. The victim searched for (`target`,
-    /// or `i` when there is none) keeps what it holds and may take all the pool but the
-    /// [`VICTIM_FLOOR`] reserved for each other listed victim (all of it when it is the
-    /// only one); every other victim is held to that floor and always given it (a new
-    /// victim's first pulse may make the target give up its lightest components). Leaves
-    /// slot `i` at the end of the pool; returns its capacity.
-    fn make_room(&mut self, i: usize, target: Option<usize>) -> usize {
-        let keep = target.unwrap_or(i);
-        let searched = keep == i;
-        for j in 0..MAX_VICTIMS {
-            if j != keep
-                && self
-                    .slots
-                    .get(j)
-                    .is_some_and(|v| usize::from(v.len) > VICTIM_FLOOR)
-            {
-                self.trim(j, VICTIM_FLOOR);
-            }
-        }
-        if !searched {
-            let short = (self.held_by_others(i) + VICTIM_FLOOR).saturating_sub(POOL_CAPACITY);
-            if short > 0
-                && let Some(n) = self.slots.get(keep).map(|v| usize::from(v.len))
-            {
-                self.trim(keep, n.saturating_sub(short));
-            }
-        }
-        if searched {
-            // Every other listed victim keeps room for its floor, so that its own pulses
-            // never have to take components from the target's mixture.
-            let reserved: usize = self
-                .slots
-                .iter()
-                .enumerate()
-                .filter(|(j, _)| *j != i)
-                .map(|(_, v)| {
-                    let n = usize::from(v.len);
-                    if v.active { n.max(VICTIM_FLOOR) } else { n }
-                })
-                .sum();
-            let room = POOL_CAPACITY.saturating_sub(reserved);
-            // A target that holds more (others newly listed) gives up its lightest.
-            if self.slots.get(i).is_some_and(|v| usize::from(v.len) > room) {
-                self.trim(i, room);
-            }
-            self.to_end(i);
-            room
-        } else {
-            self.to_end(i);
-            POOL_CAPACITY
-                .saturating_sub(self.held_by_others(i))
-                .min(VICTIM_FLOOR)
-        }
     }
 
     /// One pulse of `src` in slot `i` (from [`VictimBank::slot_for`]): the motion cut
@@ -690,8 +487,7 @@ impl VictimBank {
     /// the step in progress (`m.partial`), and its pending motion restarts from
     /// `m.back`. On error nothing changes (except that a free slot taken for a new victim
     /// stays free and empty). Returns the step's report and the pending motion the victim
-    /// was stepped with. `target` is the slot of the victim searched for (`None`: this
-    /// one), which the pool serves first (see [`VictimBank::make_room`]).
+    /// was stepped with.
     pub fn step(
         &mut self,
         i: usize,
@@ -699,7 +495,6 @@ impl VictimBank {
         m: &MotionCut,
         attitude: &Attitude,
         pulse: &Pulse,
-        target: Option<usize>,
     ) -> Result<(StepReport, Pending), EstimateError> {
         let mut pend = [Pending::zero(); MAX_VICTIMS];
         for (p, v) in pend.iter_mut().zip(self.slots.iter()) {
@@ -725,37 +520,21 @@ impl VictimBank {
             distance_m: -m.partial_m,
             ..Pending::zero()
         };
-        // The inputs are checked before the pool is rearranged for the step, so that a
-        // refused pulse changes nothing.
-        let last_t = if fresh_victim {
-            None
-        } else {
-            slot.state.last_t()
-        };
-        check_inputs(slot.state.config(), last_t, &own.d, attitude, pulse)?;
-        if fresh_victim {
-            // A new victim (or a lost one's slot taken over): a fresh mixture. The slot
-            // was free (`slot_for`), so a refused first pulse leaves it free.
-            if let Some(v) = self.slots.get_mut(i) {
-                v.active = false;
-            }
-            self.release(i);
-        }
-        let cap = self.make_room(i, target);
         let slot = self.slots.get_mut(i).ok_or(EstimateError::InvalidConfig)?;
-        let mut share = PoolShare::new(&mut self.pool, usize::from(slot.start), cap);
-        let stepped =
-            slot.state
-                .step_marked::<POOL_CAPACITY, _>(&mut share, &own.d, attitude, pulse, |_| {});
-        slot.len = v_len(share.len());
-        slot.estimate = slot.state.estimate(&share);
-        let report = stepped?;
         if fresh_victim {
+            // A new victim (or a lost one's slot taken over): a fresh mixture, reset in
+            // place (a copy of the ≈ 21 KB filter would not fit the board's stack). The
+            // slot was free (`slot_for`), so a refused first pulse leaves it free.
+            slot.active = false;
+            slot.filter.reset();
+            let report = slot.filter.step(&own.d, attitude, pulse)?;
             slot.src = src;
             slot.marked = false;
             slot.pulses = 0;
             slot.active = true;
+            return Ok(self.commit(i, pend, back, attitude, pulse.t, report, own));
         }
+        let report = slot.filter.step(&own.d, attitude, pulse)?;
         Ok(self.commit(i, pend, back, attitude, pulse.t, report, own))
     }
 
@@ -993,7 +772,7 @@ mod tests {
             t += 1.0;
             let h = crate::dipole::field(&(tx - r), m).unwrap();
             let i = bank.slot_for(Some(1), t).unwrap();
-            bank.step(i, Some(1), &cut(step), &att, &Pulse { h, t }, None)
+            bank.step(i, Some(1), &cut(step), &att, &Pulse { h, t })
                 .unwrap();
         }
         (bank, r, t)
@@ -1021,7 +800,7 @@ mod tests {
         assert_eq!(v.position_after(&Displacement::zero()), Some(now));
         // Level receiver, no motion pending: 3 m north and 0.4 m measured down (absolute)
         // move the victim 3 m south (times the estimated scale) and 0.4 m up.
-        let scale = v.estimate().unwrap().scale;
+        let scale = v.filter().estimate().unwrap().scale;
         let mut more = Displacement::zero();
         more.translation = Vec3::new(3.0, 0.0, 0.0);
         more.absolute = Vec3::new(0.0, 0.0, -0.4);
@@ -1060,7 +839,6 @@ mod tests {
                 h: other,
                 t: t + 0.5,
             },
-            Some(0),
         )
         .unwrap();
         let v = bank.get(0).unwrap();
@@ -1069,7 +847,7 @@ mod tests {
             Some(before),
             "a turn on the spot moves nothing"
         );
-        let scale = v.estimate().unwrap().scale;
+        let scale = v.filter().estimate().unwrap().scale;
         let mut ahead = Displacement::zero();
         ahead.translation = Vec3::new(1.0, 0.0, 0.0);
         let after = v.position_after(&ahead).unwrap();
@@ -1082,7 +860,7 @@ mod tests {
         let (tx, m) = (Vec3::new(0.0, 0.0, -1.5), Vec3::new(0.02, 0.0, 0.0));
         let (mut bank, r, t) = walked_bank(&tx, &m);
         let v = bank.get(0).unwrap();
-        assert!(v.localized(), "{:?}", v.estimate());
+        assert!(v.localized(), "{:?}", v.filter().estimate());
         let att = Attitude::with_sigmas(Rpy::zeros(), 0.01, 0.02);
         let still = cut(Vec3::zeros());
         // Another transmitter 5 m away, moment across: not this victim's pulse.
@@ -1091,7 +869,7 @@ mod tests {
                 .unwrap();
         let t2 = t + 2.0;
         assert_eq!(
-            bank.filter(0)
+            v.filter()
                 .explains(&still.cut, &att, &Pulse { h: other, t: t2 }),
             Some(false)
         );
@@ -1125,15 +903,8 @@ mod tests {
         let h = crate::dipole::field(&(tx - r), &m).unwrap();
         let pulse = |bank: &mut VictimBank, src: u8, t: f32| {
             let i = bank.slot_for(Some(src), t)?;
-            bank.step(
-                i,
-                Some(src),
-                &cut(Vec3::zeros()),
-                &att,
-                &Pulse { h, t },
-                Some(0),
-            )
-            .ok()?;
+            bank.step(i, Some(src), &cut(Vec3::zeros()), &att, &Pulse { h, t })
+                .ok()?;
             Some(i)
         };
         for src in 2..=4 {
@@ -1159,79 +930,6 @@ mod tests {
         bank.note_withheld(late - 1.0);
         assert_eq!(bank.drop_lost(late), 0);
         assert_eq!(bank.drop_lost(late + OVERLAP_HOLD_S + 1.0), 3);
-    }
-
-    /// Sum of the weights of slot `i`'s mixture.
-    fn weight_sum(bank: &VictimBank, i: usize) -> f32 {
-        bank.filter(i).components().map(|c| c.0).sum()
-    }
-
-    #[test]
-    fn the_pool_serves_the_target_and_keeps_a_floor_for_every_other_victim() {
-        let cfg = crate::app::AppConfig::new(Vec3::new(21.0, 0.0, -42.0), Some(0.56)).sog;
-        let mut bank = Box::new(VictimBank::new(cfg).unwrap());
-        let att = Attitude::with_sigmas(Rpy::zeros(), 0.01, 0.02);
-        let still = cut(Vec3::zeros());
-        let m = Vec3::new(0.02, 0.0, 0.0);
-        let beacons = [
-            Vec3::new(8.0, 3.0, -1.5),
-            Vec3::new(-6.0, 8.0, -1.0),
-            Vec3::new(12.0, -4.0, -2.0),
-            Vec3::new(3.0, 15.0, -1.0),
-        ];
-        let mut t = 0.0;
-        let mut pulse = |bank: &mut VictimBank, k: usize, target: Option<usize>| {
-            t += 0.3;
-            let h = crate::dipole::field(&(-beacons[k]), &m).unwrap();
-            let src = Some(k as u8);
-            let i = bank.slot_for(src, t).unwrap();
-            bank.step(i, src, &still, &att, &Pulse { h, t }, target)
-                .unwrap();
-            i
-        };
-        // Alone, the victim's mixture is initialized on the whole pool (60 % of it).
-        assert_eq!(pulse(&mut bank, 0, None), 0);
-        let alone = bank.get(0).unwrap().components();
-        // (The 80 of a fixed per-victim capacity gave 48.)
-        assert!(alone > 80 && alone <= (POOL_CAPACITY as f32 * cfg.init_fill) as usize);
-        assert_eq!(bank.pool_len(), alone);
-        // Three more transmitters while victim 0 is the target: each gets its floor.
-        for k in 1..4 {
-            let i = pulse(&mut bank, k, Some(0));
-            let v = bank.get(i).unwrap();
-            assert!(v.components() > 0 && v.components() <= VICTIM_FLOOR);
-            assert!((weight_sum(&bank, i) - 1.0).abs() < 1e-4);
-        }
-        assert_eq!(bank.len(), 4);
-        let held: usize = bank.active().map(|(_, v)| v.components()).sum();
-        assert_eq!(held, bank.pool_len());
-        // The fourth victim's floor came from the target's lightest components; at its
-        // own next pulse the target keeps what the others' floors leave (its weights
-        // still normalized).
-        assert!(bank.get(0).unwrap().components() < alone);
-        pulse(&mut bank, 0, Some(0));
-        let target = bank.get(0).unwrap().components();
-        assert!(target <= POOL_CAPACITY - 3 * VICTIM_FLOOR, "{target}");
-        assert!((weight_sum(&bank, 0) - 1.0).abs() < 1e-4);
-        // Every mixture is its own: the others' pulses leave the target's alone.
-        let snapshot = format!("{:?}", bank.filter(0));
-        for k in 1..4 {
-            pulse(&mut bank, k, Some(0));
-            assert!(
-                snapshot == format!("{:?}", bank.filter(0)),
-                "victim {k}'s pulse"
-            );
-        }
-        // The target changes to victim 1: victim 0 is held to its floor at its next pulse.
-        pulse(&mut bank, 0, Some(1));
-        assert!(bank.get(0).unwrap().components() <= VICTIM_FLOOR);
-        // Dropped victims give their components back.
-        let late = t + LOST_S + OVERLAP_HOLD_S + 1.0;
-        bank.slots[1].last_t = late;
-        assert_eq!(bank.drop_lost(late), 3);
-        assert_eq!(bank.pool_len(), bank.get(1).unwrap().components());
-        let held: usize = bank.active().map(|(_, v)| v.components()).sum();
-        assert_eq!(held, bank.pool_len());
     }
 
     #[test]

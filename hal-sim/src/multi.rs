@@ -817,7 +817,7 @@ that found it. Time to find all: from the first received pulse to the last findi
 (including the 10 s probing per victim).\n\n";
 
 /// Single-victim regression check: `rescue-report`'s calibrated case with this build's
-/// component pool.
+/// per-victim capacity.
 fn single_victim_check(tries: u64) -> anyhow::Result<String> {
     use crate::rescue_report::{Case, run_case};
     let mut s = String::new();
@@ -833,15 +833,15 @@ fn single_victim_check(tries: u64) -> anyhow::Result<String> {
     );
     let _ = writeln!(
         s,
-        "### Single victim with the shared component pool ({} components)\n\n\
+        "### Single victim with the per-victim capacity ({} components)\n\n\
          `rescue-report`'s calibrated case (same seeds 1..={tries}) run by this build, \
-         where one victim takes the whole pool of the bank: {probed}/{tries} reached \"probe \
+         where one victim gets one slot of the bank: {probed}/{tries} reached \"probe \
          here\"; probe-point error max / mean / median {} m; steps / ideal from the first \
          received pulse {}. For comparison, the single 240-component filter of the application \
          before multiple victims (the `rescue.md` of that build, with the guidance of that \
          time): 100/100, error 0.707 / 0.131 / 0.088 m, steps / ideal 5.167 / 1.743 / \
          1.635.\n",
-        firmware::victims::POOL_CAPACITY,
+        firmware::victims::VICTIM_CAPACITY,
         fmt(err, 3).replace(" | ", " / "),
         fmt(ratio, 3).replace(" | ", " / "),
     );

@@ -275,7 +275,7 @@ impl SogReplay {
             .chain(bank.active().map(|(i, _)| i).filter(|i| Some(*i) != target))
             .filter_map(|i| {
                 let v = bank.get(i)?;
-                let e = v.estimate()?;
+                let e = firmware::estimate::Estimator::estimate(v.filter())?;
                 let p = v.position_now()?;
                 let p = [p.x, p.y, p.z].map(f64::from);
                 let turn = heading_cov(&p, var_yaw);

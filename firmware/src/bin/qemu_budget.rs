@@ -9,9 +9,6 @@
 //! - `budget <name> <value>` for the summary figures,
 //! - `phase <name> <instructions> <calls>`: where the instructions of a second,
 //!   profiled replay went (summed over all steps; each mark costs ≈ 40 instructions),
-//! - `app <k> <instructions> <components>` per pulse of the same steps through the
-//!   application's victim bank ([`VictimBank::step`]: one victim, so its mixture may take
-//!   the whole shared component pool), and `budget app_*` summary figures,
 //! - `done` at the end; the exit status is 0 when every step succeeded.
 #![no_std]
 #![no_main]
@@ -34,7 +31,6 @@ use firmware::estimate::{
     Attitude, DefaultSog, Displacement, Estimator, Phase, Pulse, SOG_CAPACITY, SogConfig,
 };
 use firmware::frontend::{Calibration, Frontend, FrontendConfig};
-use firmware::victims::{MotionCut, POOL_CAPACITY, VictimBank};
 use firmware::{Vec3, dipole};
 use icount::InstructionCounter;
 
@@ -42,9 +38,7 @@ fn v(a: [f32; 3]) -> Vec3 {
     Vec3::new(a[0], a[1], a[2])
 }
 
-/// Replays every recorded step; returns (worst, sum, steps, failures). Never inlined:
-/// its ≈ 63 KB filter is on the stack only while it runs, not beside [`replay_app`]'s bank.
-#[inline(never)]
+/// Replays every recorded step; returns (worst, sum, steps, failures).
 fn replay(counter: &mut InstructionCounter) -> (u64, u64, u32, u32) {
     let (mut worst, mut sum, mut steps, mut failures) = (0u64, 0u64, 0u32, 0u32);
     let Ok(mut filter) = DefaultSog::new(SogConfig::default()) else {
@@ -65,50 +59,6 @@ fn replay(counter: &mut InstructionCounter) -> (u64, u64, u32, u32) {
         hprintln!("step {} {} {}", k, n, components);
     }
     (worst, sum, steps, failures)
-}
-
-/// Replays every recorded step through the application's victim bank, one victim (the
-/// one searched for: its mixture may take the whole pool); returns (worst, sum, steps,
-/// failures, most components). The ≈ 64 KB bank is on the stack, as the standalone
-/// filter of [`replay`] is (QEMU's STM32F405 has no core-coupled RAM; the two frames
-/// are not live at once).
-#[inline(never)]
-fn replay_app(counter: &mut InstructionCounter) -> (u64, u64, u32, u32, usize) {
-    let (mut worst, mut sum, mut steps, mut failures, mut most) = (0u64, 0u64, 0u32, 0u32, 0);
-    // Built in place (a `Result` of the bank would be a second copy on the stack).
-    let mut slot = core::mem::MaybeUninit::uninit();
-    let Ok(bank) = VictimBank::emplace(&mut slot, SogConfig::default()) else {
-        return (0, 0, 0, 1, 0);
-    };
-    for (k, s) in budget_data::STEPS.iter().enumerate() {
-        let (motion, attitude, pulse) = inputs(s);
-        let cut = MotionCut {
-            cut: motion,
-            partial: Displacement::zero(),
-            back: Displacement::zero(),
-            distance_m: motion.translation.norm(),
-            partial_m: 0.0,
-            steps: 1,
-            standing: false,
-            floors: None,
-        };
-        let (out, n) = counter.measure(|| {
-            let i = bank.slot_for(Some(0), pulse.t)?;
-            bank.step(i, Some(0), &cut, &attitude, &pulse, None).ok()
-        });
-        let components = bank.pool_len();
-        most = most.max(components);
-        match out {
-            Some(_) => {
-                worst = worst.max(n);
-                sum += n;
-                steps += 1;
-            }
-            None => failures += 1,
-        }
-        hprintln!("app {} {} {}", k, n, components);
-    }
-    (worst, sum, steps, failures, most)
 }
 
 /// The recorded step `s` as estimator inputs.
@@ -164,9 +114,7 @@ const PHASES: [(Phase, &str); 6] = [
 ];
 
 /// Replays every step again with [`DefaultSog::step_marked`] and prints the
-/// instructions per phase, summed over the run. Never inlined (its filter, as
-/// [`replay`]'s).
-#[inline(never)]
+/// instructions per phase, summed over the run.
 fn profile(counter: &mut InstructionCounter) {
     let Ok(mut filter) = DefaultSog::new(SogConfig::default()) else {
         return;
@@ -207,19 +155,6 @@ fn main() -> ! {
     hprintln!("budget step_mean {}", sum / u64::from(steps.max(1)));
     hprintln!("budget steps {}", steps);
     hprintln!("budget failures {}", failures);
-    let (app_worst, app_sum, app_steps, app_failures) = {
-        let (w, s, n, f, most) = replay_app(&mut counter);
-        hprintln!("budget pool_capacity {}", POOL_CAPACITY);
-        hprintln!("budget app_components_max {}", most);
-        (w, s, n, f)
-    };
-    hprintln!("budget app_step_worst {}", app_worst);
-    hprintln!(
-        "budget app_step_mean {}",
-        app_sum / u64::from(app_steps.max(1))
-    );
-    hprintln!("budget app_steps {}", app_steps);
-    hprintln!("budget app_failures {}", app_failures);
     let (dsp_total, dsp_worst_sample, dsp_error, dsp_one_pulse) = dsp(&mut counter);
     hprintln!("budget dsp_window_0_5s {}", dsp_total);
     hprintln!("budget dsp_worst_sample {}", dsp_worst_sample);
@@ -229,5 +164,5 @@ fn main() -> ! {
     hprintln!("budget stack_size {}", stack::size());
     profile(&mut counter);
     hprintln!("done");
-    exit::exit(failures == 0 && steps > 0 && app_failures == 0 && app_steps > 0)
+    exit::exit(failures == 0 && steps > 0)
 }

@@ -39,7 +39,7 @@ use cortex_m_rt::entry;
 use cortex_m_semihosting::hprintln;
 use firmware::Vec3;
 use firmware::app::{AppConfig, Receiver};
-use firmware::victims::POOL_CAPACITY as SOG_CAPACITY;
+use firmware::victims::VICTIM_CAPACITY as SOG_CAPACITY;
 use icount::InstructionCounter;
 use soak_walk::{EARTH_UT, IMU_PER_PULSE, STEP_LENGTH_M, Walk};
 

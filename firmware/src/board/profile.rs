@@ -14,7 +14,7 @@ use crate::app::{AppConfig, SearchMode};
 use crate::drivers::ads131m04::{self, Channels, Gain, Osr, PowerMode, WordLength};
 use crate::drivers::imu::{ACC_LSB_M_S2, GYR_LSB_RAD_S, MAG_LSB_UT, Mounting};
 use crate::frontend::{Calibration, FrontendConfig};
-use crate::victims::{MAX_VICTIMS, POOL_CAPACITY};
+use crate::victims::{MAX_VICTIMS, VICTIM_CAPACITY};
 
 /// Everything the firmware needs to know about one board design.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -179,7 +179,7 @@ pub const REFERENCE: BoardProfile = BoardProfile {
     },
     capacity: Capacity {
         victims: MAX_VICTIMS,
-        components: POOL_CAPACITY,
+        components: MAX_VICTIMS * VICTIM_CAPACITY,
     },
     defaults: Defaults {
         earth_field_ut: [21.79, 0.0, -42.77],

@@ -19,13 +19,11 @@
 
 use super::gaussian::Component;
 use super::model::{I_M, I_P, I_RPY, I_S, K_H, MOMENT_SCALE, StateMat, StateVec};
-use super::store::Store;
 use super::{Attitude, SogConfig};
 use crate::dipole::{field_with_jacobians, moment_from_field};
 use crate::frame::{rotation_from_rpy, rotation_partials};
 use crate::{Mat3, Vec3};
 use core::f32::consts::PI;
-#[cfg(test)]
 use heapless::Vec;
 
 /// The layout of the initial grid.
@@ -56,8 +54,8 @@ pub(crate) fn choose_grid(target: usize, log_ratio: f32, r_min: f32, depth_span:
 
 /// Fills `out` with the initial mixture for pulse `z_body` (µA/m, in `R_1`). Returns
 /// the number of components; 0 when the pulse cannot be inverted.
-pub(crate) fn initialize(
-    out: &mut impl Store,
+pub(crate) fn initialize<const N: usize>(
+    out: &mut Vec<Component, N>,
     config: &SogConfig,
     attitude: &Attitude,
     z_body: &Vec3,
@@ -94,8 +92,7 @@ pub(crate) fn initialize(
     let log_ratio = libm::logf(m_max / m_min) / 3.0;
     let z_hi = -(config.receiver_height + config.depth_min);
     let z_lo = -(config.receiver_height + config.depth_max);
-    let cap = out.capacity();
-    let target = ((cap as f32 * config.init_fill) as usize).clamp(1, cap.max(1));
+    let target = ((N as f32 * config.init_fill) as usize).clamp(1, N);
     let grid = choose_grid(target, log_ratio, r_min, z_hi - z_lo);
 
     // ∂z_G/∂Ψ and the attitude's contribution, shared by all components.

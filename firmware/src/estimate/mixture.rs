@@ -4,13 +4,12 @@
 
 use super::gaussian::{Component, cholesky3, lower_inverse3};
 use super::model::{I_M, I_P, I_RPY, NX, StateMat, StateVec};
-use super::store::Store;
 use crate::frame::wrap_pi;
 use crate::{Mat3, Vec3};
 use heapless::Vec;
 
 /// Normalizes the log-weights so that the weights sum to one (log-sum-exp).
-pub(crate) fn normalize(comps: &mut [Component]) {
+pub(crate) fn normalize<const N: usize>(comps: &mut Vec<Component, N>) {
     let max = comps
         .iter()
         .map(|c| c.log_w)
@@ -27,7 +26,7 @@ pub(crate) fn normalize(comps: &mut [Component]) {
 
 /// Removes components whose weight is below `min_weight`, always keeping the heaviest;
 /// renormalizes. Returns how many were removed.
-pub(crate) fn prune(comps: &mut impl Store, min_weight: f32) -> u16 {
+pub(crate) fn prune<const N: usize>(comps: &mut Vec<Component, N>, min_weight: f32) -> u16 {
     let before = comps.len();
     let max = comps
         .iter()
@@ -149,14 +148,8 @@ impl MergeKey {
 /// at ≈ 10 instructions per rejected pair. Never inlined: its key buffer then lives on
 /// the stack only while it runs, not in the whole step's frame.
 #[inline(never)]
-pub(crate) fn merge<const N: usize, S: Store>(comps: &mut S, max_d2: f32) -> u16 {
-    // `N` bounds the store's capacity; components beyond it (none) would not be merged.
-    let mut keys: Vec<MergeKey, N> = Vec::new();
-    for c in comps.iter() {
-        if keys.push(MergeKey::of(c)).is_err() {
-            break;
-        }
-    }
+pub(crate) fn merge<const N: usize>(comps: &mut Vec<Component, N>, max_d2: f32) -> u16 {
+    let mut keys: Vec<MergeKey, N> = comps.iter().map(MergeKey::of).collect();
     let mut merged = 0u16;
     let mut i = 0;
     while i < keys.len() {
@@ -179,7 +172,7 @@ pub(crate) fn merge<const N: usize, S: Store>(comps: &mut S, max_d2: f32) -> u16
                     *slot = m;
                     *key = ki;
                 }
-                comps.remove_swap(j);
+                comps.swap_remove(j);
                 keys.swap_remove(j);
                 merged += 1;
             } else {
@@ -254,7 +247,11 @@ const SPLIT_MU: [f32; 3] = [-1.057_515_5, 0.0, 1.057_515_5];
 /// carry the estimate); the rest wait for later pulses. Returns the number of
 /// components split. Never inlined (its buffer stays out of the step's frame).
 #[inline(never)]
-pub(crate) fn split<const N: usize, S: Store>(comps: &mut S, ratio: f32, min_weight: f32) -> u16 {
+pub(crate) fn split<const N: usize>(
+    comps: &mut Vec<Component, N>,
+    ratio: f32,
+    min_weight: f32,
+) -> u16 {
     let log_min_w = libm::logf(min_weight.max(f32::MIN_POSITIVE));
     // Candidates as (log-weight, index), heaviest first.
     let mut order: Vec<(f32, u16), N> = Vec::new();
@@ -266,7 +263,7 @@ pub(crate) fn split<const N: usize, S: Store>(comps: &mut S, ratio: f32, min_wei
     order.sort_unstable_by(|a, b| b.0.total_cmp(&a.0));
     let mut count = 0u16;
     for &(_, i) in order.iter() {
-        if comps.len() + 2 > comps.capacity() {
+        if comps.len() + 2 > N {
             break;
         }
         let Some(c) = comps.get(i as usize).copied() else {
@@ -355,7 +352,9 @@ fn principal_axis(c: &Mat3) -> (Vec3, f32) {
 
 /// Weighted mean and covariance of the transmitter position (IROS eq. 18), the weight
 /// of the heaviest component and its index.
-pub(crate) fn position_moments(comps: &[Component]) -> Option<(Vec3, Mat3, f32, usize)> {
+pub(crate) fn position_moments<const N: usize>(
+    comps: &Vec<Component, N>,
+) -> Option<(Vec3, Mat3, f32, usize)> {
     let mut best = 0usize;
     let mut best_lw = f32::NEG_INFINITY;
     let mut mean = Vec3::zeros();
@@ -383,7 +382,7 @@ pub(crate) fn position_moments(comps: &[Component]) -> Option<(Vec3, Mat3, f32, 
 }
 
 /// Weighted mean of the moment, each component's sign aligned with the heaviest one's.
-pub(crate) fn moment_mean(comps: &[Component], best: usize) -> Vec3 {
+pub(crate) fn moment_mean<const N: usize>(comps: &Vec<Component, N>, best: usize) -> Vec3 {
     let Some(b) = comps.get(best) else {
         return Vec3::zeros();
     };
@@ -458,7 +457,7 @@ mod tests {
         let _ = v.push(a);
         let _ = v.push(b);
         let (mean0, cov0, _, _) = position_moments(&v).unwrap();
-        assert_eq!(merge::<4, _>(&mut v, 0.3), 1);
+        assert_eq!(merge(&mut v, 0.3), 1);
         assert_eq!(v.len(), 1);
         let (mean1, cov1, w, _) = position_moments(&v).unwrap();
         assert!((mean1 - mean0).norm() < 1e-5);
@@ -469,7 +468,7 @@ mod tests {
         assert!((m - (0.3 * 5.0 + 0.7 * 5.2)).abs() < 1e-4, "{m}");
         // Far components are not merged.
         let _ = v.push(comp(Vec3::new(20.0, 1.0, -2.0), Vec3::x(), 1.0, 0.0));
-        assert_eq!(merge::<4, _>(&mut v, 0.3), 0);
+        assert_eq!(merge(&mut v, 0.3), 0);
     }
 
     #[test]
@@ -482,7 +481,7 @@ mod tests {
             0.0,
         ));
         let (mean0, cov0, _, _) = position_moments(&v).unwrap();
-        assert_eq!(split::<8, _>(&mut v, 0.12, 1e-3), 1);
+        assert_eq!(split(&mut v, 0.12, 1e-3), 1);
         assert_eq!(v.len(), 3);
         let (mean1, cov1, _, _) = position_moments(&v).unwrap();
         assert!((mean1 - mean0).norm() < 1e-5);
@@ -494,6 +493,6 @@ mod tests {
         // Capacity is respected.
         let mut full: Vec<Component, 2> = Vec::new();
         let _ = full.push(v[0]);
-        assert_eq!(split::<2, _>(&mut full, 0.01, 0.0), 0);
+        assert_eq!(split(&mut full, 0.01, 0.0), 0);
     }
 }

@@ -29,15 +29,10 @@ mod model;
 mod packed;
 mod rot;
 pub mod sog;
-mod store;
 #[cfg(test)]
 mod testsim;
 
-pub(crate) use gaussian::Component;
-pub(crate) use mixture::normalize;
-pub(crate) use sog::check_inputs;
-pub use sog::{DefaultSog, MixtureView, Phase, SOG_CAPACITY, SogFilter, SogState};
-pub(crate) use store::{PoolShare, Store};
+pub use sog::{DefaultSog, Phase, SOG_CAPACITY, SogFilter};
 
 use crate::frame::Rpy;
 use crate::{Mat3, Vec3};

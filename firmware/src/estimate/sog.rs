@@ -21,7 +21,6 @@ use super::gaussian::{Component, StepInput, gate_d2, predict_component, step_com
 use super::init::initialize;
 use super::mixture::{merge, moment_mean, normalize, position_moments, prune, split};
 use super::model::{FIELD_SCALE, I_P, I_RPY, I_S, MOMENT_SCALE, MotionMat, MotionVec};
-use super::store::Store;
 use super::{
     Attitude, Displacement, EstimateError, Estimator, Mode, Pulse, SogConfig, StepOutcome,
     StepReport, VictimEstimate, check_covariance,
@@ -52,87 +51,15 @@ const OUTLIER_RUN: u8 = 1;
 /// The filter with the default capacity.
 pub type DefaultSog = SogFilter<SOG_CAPACITY>;
 
-/// Robocentric Sum-of-Gaussians filter with room for `N` Gaussians (no heap): the
-/// mixture's bookkeeping ([`SogState`]) and its components in a vector of its own.
+/// Robocentric Sum-of-Gaussians filter with room for `N` Gaussians (no heap).
 #[derive(Debug, Clone, PartialEq)]
 pub struct SogFilter<const N: usize> {
-    state: SogState,
-    comps: Vec<Component, N>,
-}
-
-/// A mixture's bookkeeping apart from its components, which live in a store: the
-/// filter's own vector ([`SogFilter`]) or a victim's share of the component pool of
-/// [`crate::victims::VictimBank`].
-#[derive(Debug, Clone, PartialEq)]
-pub struct SogState {
     config: SogConfig,
+    comps: Vec<Component, N>,
     initialized: bool,
     /// Consecutive pulses on which every component was inconsistent.
     inconsistent_pulses: u8,
     last_t: Option<f32>,
-}
-
-/// A read-only view of one mixture (its bookkeeping and its components), wherever its
-/// components are stored.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct MixtureView<'a> {
-    state: &'a SogState,
-    comps: &'a [Component],
-}
-
-impl<'a> MixtureView<'a> {
-    /// The view of `comps` kept by `state`.
-    pub(crate) fn new(state: &'a SogState, comps: &'a [Component]) -> Self {
-        Self { state, comps }
-    }
-
-    /// The configuration.
-    pub fn config(&self) -> &'a SogConfig {
-        &self.state.config
-    }
-
-    /// Number of Gaussians currently in the mixture.
-    pub fn len(&self) -> usize {
-        self.comps.len()
-    }
-
-    /// Whether the mixture is empty (not initialized).
-    pub fn is_empty(&self) -> bool {
-        self.comps.is_empty()
-    }
-
-    /// Whether the mixture was initialized (see [`Estimator::is_initialized`]).
-    pub fn is_initialized(&self) -> bool {
-        self.state.initialized
-    }
-
-    /// Iterates over the components as `(weight, position in G_k (m), position
-    /// covariance (m²))`, e.g. for plotting.
-    pub fn components(&self) -> impl Iterator<Item = (f32, Vec3, crate::Mat3)> + use<'a> {
-        self.comps.iter().map(|c| {
-            (
-                libm::expf(c.log_w),
-                Vec3::new(c.x[3], c.x[4], c.x[5]),
-                c.block3(3),
-            )
-        })
-    }
-
-    /// The current belief (see [`Estimator::estimate`]).
-    pub fn estimate(&self) -> Option<VictimEstimate> {
-        self.state.estimate(self.comps)
-    }
-
-    /// Read-only: whether some component explains `pulse` after `motion` (see
-    /// [`SogFilter::explains`]).
-    pub fn explains(
-        &self,
-        motion: &Displacement,
-        attitude: &Attitude,
-        pulse: &Pulse,
-    ) -> Option<bool> {
-        self.state.explains(self.comps, motion, attitude, pulse)
-    }
 }
 
 impl<const N: usize> SogFilter<N> {
@@ -145,33 +72,41 @@ impl<const N: usize> SogFilter<N> {
     /// Whether [`SogFilter::new`] accepts `config` at this capacity (`InvalidConfig` if
     /// not), without building the filter.
     pub fn check_config(config: &SogConfig) -> Result<(), EstimateError> {
-        SogState::check_config(config, N)
+        config.validate()?;
+        if N < 8 {
+            return Err(EstimateError::InvalidConfig);
+        }
+        Ok(())
     }
 
     /// [`SogFilter::new`] for a configuration [`SogFilter::check_config`] accepted:
     /// infallible, so a caller can build the filter straight into its final place
-    /// (a `Result` of a ≈ 63 KB filter would be built on the stack first).
+    /// (a `Result` of a ≈ 20 KB filter would be built on the stack first).
     #[inline(always)]
     pub(crate) fn new_checked(config: SogConfig) -> Self {
         Self {
-            state: SogState::new_checked(config),
+            config,
             comps: Vec::new(),
+            initialized: false,
+            inconsistent_pulses: 0,
+            last_t: None,
         }
     }
 
     /// The configuration.
     pub fn config(&self) -> &SogConfig {
-        &self.state.config
+        &self.config
     }
 
-    /// The read-only view of the mixture.
-    pub fn view(&self) -> MixtureView<'_> {
-        MixtureView::new(&self.state, &self.comps)
-    }
-
-    /// The receiver's height above the snow now (see [`SogState::set_receiver_height`]).
+    /// The receiver's height above the snow now (m, as tracked from its measured
+    /// vertical moves): the depth prior of the next (re)initialization places the victim
+    /// `height + depth_min … height + depth_max` below the receiver (ICRA eq. 16's grid),
+    /// so a mixture started with the receiver lowered to the snow is not a metre too
+    /// deep. A non-finite or negative height is ignored.
     pub fn set_receiver_height(&mut self, height_m: f32) {
-        self.state.set_receiver_height(height_m);
+        if height_m.is_finite() && height_m >= 0.0 {
+            self.config.receiver_height = height_m;
+        }
     }
 
     /// Number of Gaussians currently in the mixture.
@@ -187,7 +122,13 @@ impl<const N: usize> SogFilter<N> {
     /// Iterates over the components as `(weight, position in G_k (m), position
     /// covariance (m²))`, e.g. for plotting.
     pub fn components(&self) -> impl Iterator<Item = (f32, Vec3, crate::Mat3)> + '_ {
-        self.view().components()
+        self.comps.iter().map(|c| {
+            (
+                libm::expf(c.log_w),
+                Vec3::new(c.x[3], c.x[4], c.x[5]),
+                c.block3(3),
+            )
+        })
     }
 
     /// Replaces an initialized mixture by one Gaussian with mean `[Ψ (rad), p_T (m),
@@ -197,103 +138,6 @@ impl<const N: usize> SogFilter<N> {
     /// pulse clock starts there); bad values leave the state unchanged.
     pub fn reset_to_single(
         &mut self,
-        mean: &nalgebra::SVector<f32, 10>,
-        cov: &nalgebra::SMatrix<f32, 10, 10>,
-    ) -> Result<(), EstimateError> {
-        self.state.reset_to_single(&mut self.comps, mean, cov)
-    }
-
-    /// Read-only: whether some component explains `pulse` after `motion` (its outlier
-    /// gate, eq. 12–14: d² ≤ `divergence_d2`). `None` before initialization or for inputs
-    /// [`Estimator::step`] would refuse. Used to give a new front-end track to the
-    /// victim whose transmitter it is (issue 9); the state is not touched.
-    pub fn explains(
-        &self,
-        motion: &Displacement,
-        attitude: &Attitude,
-        pulse: &Pulse,
-    ) -> Option<bool> {
-        self.view().explains(motion, attitude, pulse)
-    }
-
-    /// [`Estimator::step`], calling `mark` at the end of each [`Phase`] (the plain step
-    /// passes a no-op, which compiles away).
-    pub fn step_marked(
-        &mut self,
-        motion: &Displacement,
-        attitude: &Attitude,
-        pulse: &Pulse,
-        mark: impl FnMut(Phase),
-    ) -> Result<StepReport, EstimateError> {
-        self.state
-            .step_marked::<N, _>(&mut self.comps, motion, attitude, pulse, mark)
-    }
-}
-
-impl SogState {
-    /// Whether a mixture of capacity `capacity` accepts `config` (`InvalidConfig` if not).
-    pub fn check_config(config: &SogConfig, capacity: usize) -> Result<(), EstimateError> {
-        config.validate()?;
-        if capacity < 8 {
-            return Err(EstimateError::InvalidConfig);
-        }
-        Ok(())
-    }
-
-    /// The bookkeeping of an empty mixture for a configuration already checked.
-    #[inline(always)]
-    pub(crate) fn new_checked(config: SogConfig) -> Self {
-        Self {
-            config,
-            initialized: false,
-            inconsistent_pulses: 0,
-            last_t: None,
-        }
-    }
-
-    /// The configuration.
-    pub fn config(&self) -> &SogConfig {
-        &self.config
-    }
-
-    /// Whether the mixture was initialized.
-    pub fn is_initialized(&self) -> bool {
-        self.initialized
-    }
-
-    /// The receiver's height above the snow now (m, as tracked from its measured
-    /// vertical moves): the depth prior of the next (re)initialization places the victim
-    /// `height + depth_min … height + depth_max` below the receiver (ICRA eq. 16's grid),
-    /// so a mixture started with the receiver lowered to the snow is not a metre too
-    /// deep. A non-finite or negative height is ignored.
-    pub fn set_receiver_height(&mut self, height_m: f32) {
-        if height_m.is_finite() && height_m >= 0.0 {
-            self.config.receiver_height = height_m;
-        }
-    }
-
-    /// Forgets the mixture (empties `comps`).
-    pub(crate) fn reset(&mut self, comps: &mut impl Store) {
-        comps.clear();
-        self.forget();
-    }
-
-    /// Forgets the mixture whose components the caller discards.
-    pub(crate) fn forget(&mut self) {
-        self.initialized = false;
-        self.inconsistent_pulses = 0;
-        self.last_t = None;
-    }
-
-    /// Time of the last pulse stepped (s), `None` before the first.
-    pub(crate) fn last_t(&self) -> Option<f32> {
-        self.last_t
-    }
-
-    /// [`SogFilter::reset_to_single`] on the mixture `comps`.
-    pub(crate) fn reset_to_single(
-        &mut self,
-        comps: &mut impl Store,
         mean: &nalgebra::SVector<f32, 10>,
         cov: &nalgebra::SMatrix<f32, 10, 10>,
     ) -> Result<(), EstimateError> {
@@ -309,8 +153,8 @@ impl SogState {
         d.fixed_rows_mut::<3>(super::model::I_M).fill(MOMENT_SCALE);
         let x = mean.component_mul(&d);
         let p = cov.component_mul(&(d * d.transpose()));
-        comps.clear();
-        let _ = comps.push(Component::new(x, &p, 0.0));
+        self.comps.clear();
+        let _ = self.comps.push(Component::new(x, &p, 0.0));
         self.inconsistent_pulses = 0;
         Ok(())
     }
@@ -329,23 +173,22 @@ impl SogState {
     /// Builds the mixture from a pulse; `Waiting` if it is too weak.
     fn try_initialize(
         &mut self,
-        comps: &mut impl Store,
         attitude: &Attitude,
         z: &Vec3,
         outcome: StepOutcome,
     ) -> StepReport {
         let snr = z.norm() / (self.config.sigma_bkg * FIELD_SCALE);
         if snr < self.config.init_snr {
-            comps.clear();
+            self.comps.clear();
             self.initialized = false;
             return StepReport::new(StepOutcome::Waiting, 0);
         }
         let r_var = self.noise_var(z);
         let exact = self.exact_motion();
-        let n = initialize(comps, &self.config, attitude, z, r_var, exact);
+        let n = initialize(&mut self.comps, &self.config, attitude, z, r_var, exact);
         self.initialized = n > 0;
         self.inconsistent_pulses = 0;
-        normalize(comps);
+        normalize(&mut self.comps);
         let outcome = if n > 0 { outcome } else { StepOutcome::Waiting };
         StepReport::new(outcome, n)
     }
@@ -374,15 +217,18 @@ impl SogState {
     /// consistent one, so a normal pulse costs about one component's gate statistic
     /// (≈ ⅓ of its step; the sort, a few thousand instructions).
     #[inline(never)]
-    fn outlier_d2<const N: usize>(&self, comps: &[Component], inp: &StepInput) -> Option<f32> {
+    fn outlier_d2(&self, inp: &StepInput) -> Option<f32> {
         let mut order: Vec<(f32, u16), N> = Vec::new();
-        for (i, c) in comps.iter().enumerate() {
+        for (i, c) in self.comps.iter().enumerate() {
             let _ = order.push((c.log_w, i as u16));
         }
         order.sort_unstable_by(|a, b| b.0.total_cmp(&a.0));
         let mut best = f32::INFINITY;
         let mut inp_c = *inp;
-        for c in order.iter().filter_map(|&(_, i)| comps.get(usize::from(i))) {
+        for c in order
+            .iter()
+            .filter_map(|&(_, i)| self.comps.get(usize::from(i)))
+        {
             let (mut x, mut p) = (c.x, c.p());
             inp.revert_scale(&mut x, &mut p);
             inp_c.r_var = inp.r_var + linearization_var(self.config.nonlinear_k, &inp.z, c);
@@ -395,11 +241,12 @@ impl SogState {
         Some(best)
     }
 
-    /// Read-only: whether some component of `comps` explains `pulse` after `motion`
-    /// (see [`SogFilter::explains`]).
-    pub(crate) fn explains(
+    /// Read-only: whether some component explains `pulse` after `motion` (its outlier
+    /// gate, eq. 12–14: d² ≤ `divergence_d2`). `None` before initialization or for inputs
+    /// [`Estimator::step`] would refuse. Used to give a new front-end track to the
+    /// victim whose transmitter it is (issue 9); the state is not touched.
+    pub fn explains(
         &self,
-        comps: &[Component],
         motion: &Displacement,
         attitude: &Attitude,
         pulse: &Pulse,
@@ -411,11 +258,7 @@ impl SogState {
         let z = pulse.h * FIELD_SCALE;
         let mut inp = step_input(&self.config, motion, &z, self.noise_var(&z));
         inp.scale_rev = self.scale_reversion(pulse.t);
-        // Every component is scanned (the order buffer holds up to the pool's size).
-        Some(
-            self.outlier_d2::<{ crate::victims::POOL_CAPACITY }>(comps, &inp)
-                .is_none(),
-        )
+        Some(self.outlier_d2(&inp).is_none())
     }
 
     /// A pulse the outlier gate refused: the mixture follows the receiver's motion
@@ -427,7 +270,6 @@ impl SogState {
     #[inline(never)]
     fn withhold(
         &mut self,
-        comps: &mut impl Store,
         inp: &StepInput,
         att: Option<(&Vec3, &Mat3)>,
         attitude: &Attitude,
@@ -439,34 +281,34 @@ impl SogState {
         let mut dropped = 0u16;
         if self.inconsistent_pulses < self.config.divergence_pulses {
             let mut i = 0;
-            while let Some(c) = comps.get(i).copied() {
+            while let Some(c) = self.comps.get(i).copied() {
                 let (mut x0, mut p0) = (c.x, c.p());
                 inp.revert_scale(&mut x0, &mut p0);
                 match predict_component(inp, &x0, &p0, att) {
                     Ok((x, p)) => {
-                        if let Some(slot) = comps.get_mut(i) {
+                        if let Some(slot) = self.comps.get_mut(i) {
                             *slot = Component::new(x, &p, c.log_w);
                         }
                         i += 1;
                     }
                     Err(_) => {
-                        comps.remove_swap(i);
+                        self.comps.swap_remove(i);
                         dropped += 1;
                     }
                 }
                 mark(Phase::Update);
             }
-            if !comps.is_empty() {
+            if !self.comps.is_empty() {
                 if dropped > 0 {
-                    normalize(comps);
+                    normalize(&mut self.comps);
                 }
-                let mut report = StepReport::new(StepOutcome::Withheld, comps.len());
+                let mut report = StepReport::new(StepOutcome::Withheld, self.comps.len());
                 report.best_d2 = best_d2;
                 report.dropped = dropped;
                 return report;
             }
         }
-        let mut report = self.try_initialize(comps, attitude, z, StepOutcome::Reinitialized);
+        let mut report = self.try_initialize(attitude, z, StepOutcome::Reinitialized);
         report.dropped = dropped;
         report.best_d2 = best_d2;
         report
@@ -586,12 +428,11 @@ pub enum Phase {
     Split,
 }
 
-impl SogState {
-    /// One step of the mixture held in `comps` ([`SogFilter::step_marked`]); `N` bounds
-    /// the capacity of `comps` (the size of the step's scratch buffers).
-    pub(crate) fn step_marked<const N: usize, S: Store>(
+impl<const N: usize> SogFilter<N> {
+    /// [`Estimator::step`], calling `mark` at the end of each [`Phase`] (the plain step
+    /// passes a no-op, which compiles away).
+    pub fn step_marked(
         &mut self,
-        comps: &mut S,
         motion: &Displacement,
         attitude: &Attitude,
         pulse: &Pulse,
@@ -604,7 +445,7 @@ impl SogState {
         let z = pulse.h * FIELD_SCALE;
 
         if !self.initialized {
-            let report = self.try_initialize(comps, attitude, &z, StepOutcome::Initialized);
+            let report = self.try_initialize(attitude, &z, StepOutcome::Initialized);
             mark(Phase::Setup);
             return Ok(report);
         }
@@ -621,9 +462,9 @@ impl SogState {
         let att = fuse_attitude.then_some((&attitude.rpy, &att_r));
         // Outlier gate, only on a pulse that follows a consistent one (see `OUTLIER_RUN`).
         if self.inconsistent_pulses < OUTLIER_RUN
-            && let Some(best_d2) = self.outlier_d2::<N>(comps, &inp)
+            && let Some(best_d2) = self.outlier_d2(&inp)
         {
-            return Ok(self.withhold(comps, &inp, att, attitude, &z, best_d2, &mut mark));
+            return Ok(self.withhold(&inp, att, attitude, &z, best_d2, &mut mark));
         }
         // Scale-prior divergence (see `SogConfig::scale_divergence_d2`): the posterior
         // mean of a consistent Gaussian has ŝ − 1 ~ N(0, σ_s² − P_ss).
@@ -651,8 +492,8 @@ impl SogState {
         // count: the weights are normalized, so at most 1 / iekf_min_weight of them).
         let iekf_log_w = libm::logf(self.config.iekf_min_weight);
         let mut i = 0;
-        while i < comps.len() {
-            let Some(c) = comps.get(i).copied() else {
+        while i < self.comps.len() {
+            let Some(c) = self.comps.get(i).copied() else {
                 break;
             };
             let (mut x0, mut p0) = (c.x, c.p());
@@ -683,14 +524,14 @@ impl SogState {
                     best_s2 = best_s2.min(scale_d2(&x, &p));
                     // The weight takes the pulse's likelihood only (eq. 17); see
                     // `attitude_update` for why the attitude's is left out.
-                    if let Some(slot) = comps.get_mut(i) {
+                    if let Some(slot) = self.comps.get_mut(i) {
                         *slot = Component::new(x, &p, c.log_w + inn.log_lik);
                     }
                     mark(Phase::Store);
                     i += 1;
                 }
                 Err(_) => {
-                    comps.remove_swap(i);
+                    self.comps.swap_remove(i);
                     dropped += 1;
                 }
             }
@@ -703,23 +544,27 @@ impl SogState {
         } else {
             self.inconsistent_pulses = 0;
         }
-        if comps.is_empty() || self.inconsistent_pulses >= self.config.divergence_pulses {
-            let mut report = self.try_initialize(comps, attitude, &z, StepOutcome::Reinitialized);
+        if self.comps.is_empty() || self.inconsistent_pulses >= self.config.divergence_pulses {
+            let mut report = self.try_initialize(attitude, &z, StepOutcome::Reinitialized);
             report.dropped = dropped;
             report.best_d2 = best_d2;
             return Ok(report);
         }
 
-        normalize(comps);
-        let pruned = prune(comps, self.config.prune_weight);
+        normalize(&mut self.comps);
+        let pruned = prune(&mut self.comps, self.config.prune_weight);
         mark(Phase::Prune);
-        let merged = merge::<N, S>(comps, self.config.merge_d2);
+        let merged = merge(&mut self.comps, self.config.merge_d2);
         mark(Phase::Merge);
-        let split = split::<N, S>(comps, self.config.split_ratio, self.config.split_min_weight);
+        let split = split(
+            &mut self.comps,
+            self.config.split_ratio,
+            self.config.split_min_weight,
+        );
         mark(Phase::Split);
         Ok(StepReport {
             outcome: StepOutcome::Updated,
-            n_components: comps.len(),
+            n_components: self.comps.len(),
             best_d2,
             pruned,
             merged,
@@ -740,30 +585,15 @@ impl<const N: usize> Estimator for SogFilter<N> {
     }
 
     fn estimate(&self) -> Option<VictimEstimate> {
-        self.state.estimate(&self.comps)
-    }
-
-    fn reset(&mut self) {
-        self.state.reset(&mut self.comps);
-    }
-
-    fn is_initialized(&self) -> bool {
-        self.state.initialized
-    }
-}
-
-impl SogState {
-    /// The belief of the mixture `comps` (see [`Estimator::estimate`]).
-    pub(crate) fn estimate(&self, comps: &[Component]) -> Option<VictimEstimate> {
         if !self.initialized {
             return None;
         }
-        let (p, cov, max_weight, best) = position_moments(comps)?;
-        let heaviest = comps.get(best)?;
-        let moment = moment_mean(comps, best) / MOMENT_SCALE;
+        let (p, cov, max_weight, best) = position_moments(&self.comps)?;
+        let heaviest = self.comps.get(best)?;
+        let moment = moment_mean(&self.comps, best) / MOMENT_SCALE;
         let mut scale = 0.0;
         let mut scale_var = 0.0;
-        for c in comps.iter() {
+        for c in self.comps.iter() {
             let w = libm::expf(c.log_w);
             scale += w * c.x[I_S];
             scale_var += w * (c.p_at(I_S, I_S) + c.x[I_S] * c.x[I_S]);
@@ -780,9 +610,20 @@ impl SogState {
                 heaviest.x[I_RPY + 1],
                 heaviest.x[I_RPY + 2],
             ),
-            n_components: comps.len(),
+            n_components: self.comps.len(),
             max_weight,
         })
+    }
+
+    fn reset(&mut self) {
+        self.comps.clear();
+        self.initialized = false;
+        self.inconsistent_pulses = 0;
+        self.last_t = None;
+    }
+
+    fn is_initialized(&self) -> bool {
+        self.initialized
     }
 }
 
