@@ -421,18 +421,12 @@ fn draw_map(o: &Outcome, area: &DrawingArea<BitMapBackend<'_>, Shift>) -> Result
         .y_label_area_size(60)
         .build_cartesian_2d(xr, yr)
         .map_err(plot::err)?;
-    chart
-        .configure_mesh()
-        .x_desc("east (m)")
-        .y_desc("north (m)")
-        .x_label_formatter(&|v| format!("{v:.0}"))
-        .y_label_formatter(&|v| format!("{v:.0}"))
-        .label_style((plot::FONT, 14))
-        .axis_desc_style((plot::FONT, 15))
-        .light_line_style(RGBColor(240, 240, 240))
-        .bold_line_style(RGBColor(215, 215, 215))
-        .draw()
-        .map_err(plot::err)?;
+    plot::draw_axes(
+        &mut chart,
+        ("east (m)", "north (m)"),
+        &|v| format!("{v:.0}"),
+        &|v| format!("{v:.0}"),
+    )?;
     for (i, s) in o.snapshots.iter().enumerate() {
         let colour = SNAPSHOT_COLOURS[i % SNAPSHOT_COLOURS.len()];
         let mut comps: Vec<_> = s.components.iter().filter(|c| c.0 >= 1e-3).collect();
@@ -471,14 +465,7 @@ fn draw_map(o: &Outcome, area: &DrawingArea<BitMapBackend<'_>, Shift>) -> Result
         .map_err(plot::err)?
         .label(format!("victim ({:.1} m deep)", -o.victim[2]))
         .legend(|(x, y)| Cross::new((x + 10, y), 6, RED.stroke_width(3)));
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .background_style(WHITE.mix(0.85))
-        .border_style(RGBColor(160, 160, 160))
-        .label_font((plot::FONT, 13))
-        .draw()
-        .map_err(plot::err)
+    plot::draw_legend(&mut chart)
 }
 
 /// True distance and the estimate's horizontal error against time, log scale.
@@ -490,18 +477,12 @@ fn draw_errors(o: &Outcome, area: &DrawingArea<BitMapBackend<'_>, Shift>) -> Res
         .y_label_area_size(60)
         .build_cartesian_2d(0.0..t_max, (0.01f64..200.0).log_scale())
         .map_err(plot::err)?;
-    chart
-        .configure_mesh()
-        .x_desc("time since the start (s)")
-        .y_desc("metres")
-        .x_label_formatter(&|v| format!("{v:.0}"))
-        .y_label_formatter(&|v| format!("{v}"))
-        .label_style((plot::FONT, 14))
-        .axis_desc_style((plot::FONT, 15))
-        .light_line_style(RGBColor(240, 240, 240))
-        .bold_line_style(RGBColor(215, 215, 215))
-        .draw()
-        .map_err(plot::err)?;
+    plot::draw_axes(
+        &mut chart,
+        ("time since the start (s)", "metres"),
+        &|v| format!("{v:.0}"),
+        &|v| format!("{v}"),
+    )?;
     let grey = RGBColor(120, 120, 120);
     chart
         .draw_series(LineSeries::new(
@@ -521,14 +502,7 @@ fn draw_errors(o: &Outcome, area: &DrawingArea<BitMapBackend<'_>, Shift>) -> Res
         .map_err(plot::err)?
         .label("horizontal error of the estimate")
         .legend(|(x, y)| PathElement::new([(x, y), (x + 20, y)], RED.stroke_width(2)));
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .background_style(WHITE.mix(0.85))
-        .border_style(RGBColor(160, 160, 160))
-        .label_font((plot::FONT, 13))
-        .draw()
-        .map_err(plot::err)
+    plot::draw_legend(&mut chart)
 }
 
 #[cfg(test)]

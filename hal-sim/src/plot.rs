@@ -1,5 +1,7 @@
 //! What every figure shares: a real font (DejaVu Sans, embedded, so a fresh machine needs no
 //! font stack) for plotters' axes, ticks, captions and legends, and the error conversion.
+use plotters::coord::ranged1d::ValueFormatter;
+use plotters::prelude::*;
 use plotters::style::{FontStyle, register_font};
 use std::sync::Once;
 
@@ -24,10 +26,52 @@ pub fn err(e: impl std::fmt::Debug) -> anyhow::Error {
     anyhow::anyhow!("drawing failed: {e:?}")
 }
 
+/// Draws a chart's axes in the figures' style: named, ticks in the embedded font formatted
+/// by `x_fmt` / `y_fmt`, a pale grid.
+pub fn draw_axes<'a, DB, X, Y>(
+    chart: &mut ChartContext<'a, DB, Cartesian2d<X, Y>>,
+    (x_desc, y_desc): (&str, &str),
+    x_fmt: &dyn Fn(&X::ValueType) -> String,
+    y_fmt: &dyn Fn(&Y::ValueType) -> String,
+) -> anyhow::Result<()>
+where
+    DB: DrawingBackend + 'a,
+    X: Ranged + ValueFormatter<X::ValueType>,
+    Y: Ranged + ValueFormatter<Y::ValueType>,
+{
+    chart
+        .configure_mesh()
+        .x_desc(x_desc)
+        .y_desc(y_desc)
+        .x_label_formatter(x_fmt)
+        .y_label_formatter(y_fmt)
+        .label_style((FONT, 14))
+        .axis_desc_style((FONT, 15))
+        .light_line_style(RGBColor(240, 240, 240))
+        .bold_line_style(RGBColor(215, 215, 215))
+        .draw()
+        .map_err(err)
+}
+
+/// Draws the legend of a chart's labelled series in its upper right corner.
+pub fn draw_legend<'a, DB, CT>(chart: &mut ChartContext<'a, DB, CT>) -> anyhow::Result<()>
+where
+    DB: DrawingBackend + 'a,
+    CT: CoordTranslate,
+{
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
+        .background_style(WHITE.mix(0.85))
+        .border_style(RGBColor(160, 160, 160))
+        .label_font((FONT, 13))
+        .draw()
+        .map_err(err)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use plotters::prelude::*;
 
     #[test]
     fn the_embedded_font_draws_text_with_non_ascii_signs() {

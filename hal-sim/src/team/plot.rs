@@ -52,18 +52,12 @@ pub fn plot(map: &TeamMap, truth: Option<&TruthOverlay>, path: &Path) -> Result<
             .y_label_area_size(55)
             .build_cartesian_2d(xr, yr)
             .map_err(plot::err)?;
-        chart
-            .configure_mesh()
-            .x_desc("east (m)")
-            .y_desc("north (m)")
-            .x_label_formatter(&|v| format!("{v:.0}"))
-            .y_label_formatter(&|v| format!("{v:.0}"))
-            .label_style((FONT, 14))
-            .axis_desc_style((FONT, 15))
-            .light_line_style(RGBColor(244, 244, 244))
-            .bold_line_style(RGBColor(220, 220, 220))
-            .draw()
-            .map_err(plot::err)?;
+        plot::draw_axes(
+            &mut chart,
+            ("east (m)", "north (m)"),
+            &|v| format!("{v:.0}"),
+            &|v| format!("{v:.0}"),
+        )?;
         draw_coverage(map, &mut chart)?;
         if let Some(t) = truth {
             draw_true_tracks(t, &mut chart)?;
@@ -73,14 +67,7 @@ pub fn plot(map: &TeamMap, truth: Option<&TruthOverlay>, path: &Path) -> Result<
         if let Some(t) = truth {
             draw_true_victims(t, &mut chart)?;
         }
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
-            .background_style(WHITE.mix(0.85))
-            .border_style(RGBColor(160, 160, 160))
-            .label_font((FONT, 13))
-            .draw()
-            .map_err(plot::err)?;
+        plot::draw_legend(&mut chart)?;
         root.present().map_err(plot::err)?;
     }
     write_png(path, SIZE, SIZE, &buf)
