@@ -153,7 +153,7 @@ impl YawMean {
 pub fn tilt_heading_var(earth_field_ut: &Vec3, rpy_cov: &Mat3) -> f32 {
     let b = earth_field_ut;
     let b_h = libm::sqrtf(b.x * b.x + b.y * b.y);
-    if !(b_h > 1e-3 * b.norm()) {
+    if b_h.is_nan() || b_h <= 1e-3 * b.norm() {
         return 0.0;
     }
     let tan_dip = b.z / b_h;
@@ -812,8 +812,14 @@ mod tests {
         assert!(worst < 3.0, "yaw error {worst} σ");
         let (rpy, cov) = m.attitude();
         // The test does exercise a heading error beyond the filter's own yaw σ.
-        let own = m.attitude_filter().map(|f| f.rpy_cov()[(2, 2)]).unwrap_or(0.0);
-        assert!(wrap_pi(rpy.z - 0.3).abs() > 3.0 * own.sqrt(), "{rpy:?} {cov:?}");
+        let own = m
+            .attitude_filter()
+            .map(|f| f.rpy_cov()[(2, 2)])
+            .unwrap_or(0.0);
+        assert!(
+            wrap_pi(rpy.z - 0.3).abs() > 3.0 * own.sqrt(),
+            "{rpy:?} {cov:?}"
+        );
     }
 
     #[test]
