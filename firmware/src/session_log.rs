@@ -183,6 +183,32 @@ fn plain(s: &str) -> bool {
     !s.chars().any(|c| c == '"' || c == '\\' || c.is_control())
 }
 
+/// `s` made writable as a JSON string without escaping, in `buf`: a `"` becomes `'`, a
+/// `\` or a control character (a newline) a space; cut at a character boundary when
+/// `buf` is too small. For texts from outside (a panic message) before they go into an
+/// event.
+pub fn plain_text<'a>(s: &str, buf: &'a mut [u8]) -> &'a str {
+    let mut n = 0;
+    for c in s.chars() {
+        let c = match c {
+            '"' => '\'',
+            '\\' => ' ',
+            c if c.is_control() => ' ',
+            c => c,
+        };
+        let mut tmp = [0u8; 4];
+        let bytes = c.encode_utf8(&mut tmp).as_bytes();
+        let Some(dst) = buf.get_mut(n..n + bytes.len()) else {
+            break;
+        };
+        dst.copy_from_slice(bytes);
+        n += bytes.len();
+    }
+    buf.get(..n)
+        .and_then(|b| core::str::from_utf8(b).ok())
+        .unwrap_or("")
+}
+
 /// An event record with extra keys `details` (key, value) after `kind` and `why`; keys and
 /// text values are checked like `kind`, numbers for finiteness, all before anything is
 /// written.
@@ -531,6 +557,17 @@ mod tests {
             r#""kind":"mark","seq":2}
 "#
         ));
+    }
+
+    #[test]
+    fn outside_text_is_made_plain_and_cut_on_a_character() {
+        let mut buf = [0u8; 16];
+        let t = plain_text("bad \"x\"\n@a\\b.rs:3", &mut buf);
+        assert_eq!(t, "bad 'x' @a b.rs:");
+        let mut s = String::new();
+        write_event(&mut s, 1.0, "reset", Some(t)).unwrap();
+        let mut small = [0u8; 5];
+        assert_eq!(plain_text("abcdé", &mut small), "abcd");
     }
 
     #[test]
