@@ -362,27 +362,61 @@ impl<W: Write> Recorder<W> {
         &mut self.w
     }
 
+    /// The writer, to look at.
+    pub fn writer_ref(&self) -> &W {
+        &self.w
+    }
+
     /// Gives the writer back.
     pub fn into_writer(self) -> W {
         self.w
     }
 }
 
-/// Writes to two writers (the SD card and the UART stream); fails when either fails, after
-/// giving the text to both, so a failing one does not starve the other.
+/// Writes to two writers (the SD card and the UART stream) and counts each one's failed
+/// writes. With a second writer it fails only when both fail, so that a dead card does
+/// not tear the UART's lines (a record's `write!` stops at its first error); with one
+/// writer it fails when that one fails.
 #[derive(Debug)]
 pub struct Tee<A, B> {
     /// The first writer.
     pub a: A,
     /// The second writer (`None`: not used).
     pub b: Option<B>,
+    errors: [u32; 2],
+}
+
+impl<A, B> Tee<A, B> {
+    /// Writes to `a` and, when given, `b`.
+    pub fn new(a: A, b: Option<B>) -> Self {
+        Self {
+            a,
+            b,
+            errors: [0; 2],
+        }
+    }
+
+    /// Failed writes of the first and of the second writer.
+    pub fn errors(&self) -> [u32; 2] {
+        self.errors
+    }
 }
 
 impl<A: Write, B: Write> Write for Tee<A, B> {
     fn write_str(&mut self, s: &str) -> core::fmt::Result {
         let ra = self.a.write_str(s);
-        let rb = self.b.as_mut().map_or(Ok(()), |b| b.write_str(s));
-        ra.and(rb)
+        let [ea, eb] = &mut self.errors;
+        if ra.is_err() {
+            *ea = ea.saturating_add(1);
+        }
+        let Some(b) = self.b.as_mut() else {
+            return ra;
+        };
+        let rb = b.write_str(s);
+        if rb.is_err() {
+            *eb = eb.saturating_add(1);
+        }
+        ra.or(rb)
     }
 }
 
@@ -571,22 +605,38 @@ mod tests {
     }
 
     #[test]
-    fn tee_writes_both_and_reports_either_failure() {
-        let mut t = Tee {
-            a: String::new(),
-            b: Some(FailAfter {
+    fn tee_writes_both_and_fails_only_when_both_fail() {
+        let mut t = Tee::new(
+            String::new(),
+            Some(FailAfter {
                 out: String::new(),
                 left: 1,
             }),
-        };
+        );
         t.write_str("ab").unwrap();
-        assert!(t.write_str("cd").is_err());
+        t.write_str("cd").unwrap();
         assert_eq!(t.a, "abcd");
-        let mut t: Tee<String, String> = Tee {
-            a: String::new(),
-            b: None,
-        };
-        t.write_str("x").unwrap();
-        assert_eq!(t.a, "x");
+        assert_eq!(t.errors(), [0, 1]);
+        let mut t = Tee::new(
+            FailAfter {
+                out: String::new(),
+                left: 0,
+            },
+            Some(FailAfter {
+                out: String::new(),
+                left: 0,
+            }),
+        );
+        assert!(t.write_str("x").is_err());
+        assert_eq!(t.errors(), [1, 1]);
+        let mut t: Tee<FailAfter, String> = Tee::new(
+            FailAfter {
+                out: String::new(),
+                left: 0,
+            },
+            None,
+        );
+        assert!(t.write_str("x").is_err());
+        assert_eq!(t.errors(), [1, 0]);
     }
 }

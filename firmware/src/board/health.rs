@@ -527,7 +527,9 @@ mod tests {
             assert!(dark > 20, "{state:?}: no word in the box");
         }
         // Clear of the battery's "LOW" (ends at x 33) and the uncertainty text (x 66).
-        assert!(SD_MARK.top_left.x > 15 + 3 * 6);
-        assert!(SD_MARK.top_left.x + SD_MARK.size.width as i32 <= 66);
+        const {
+            assert!(SD_MARK.top_left.x > 15 + 3 * 6);
+            assert!(SD_MARK.top_left.x + SD_MARK.size.width as i32 <= display::UNCERTAINTY_AT.x);
+        }
     }
 }
