@@ -21,7 +21,7 @@ use serde::Serialize;
 use std::time::Instant;
 
 /// The evaluated cases.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum Case {
     /// Known trajectory (ICRA 2006): exact displacements and attitude, low pulse noise.
@@ -961,9 +961,11 @@ pub fn run_imu(seed: u64) -> RunResult {
 
 /// Runs `tries` seeded runs of `case` in parallel (seeds `first_seed..`).
 pub fn run_case(case: Case, first_seed: u64, tries: u64, noise: &MotionNoise) -> Vec<RunResult> {
+    use indicatif::ParallelProgressIterator as _;
     use rayon::prelude::*;
     (first_seed..first_seed + tries)
         .into_par_iter()
+        .progress_with(crate::progress::bar(tries, &format!("{case:?} runs")))
         .map(|seed| match case {
             Case::ClosedLoop => run_closed_loop(seed, noise),
             Case::Imu => run_imu(seed),
@@ -1482,9 +1484,12 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
     if args.budget {
         flags.push_str(" --budget");
     }
+    let command = format!(
+        "cargo run -p hal-sim --release -- accuracy --tries {}{flags}",
+        args.tries
+    );
     let mut report = format!(
-        "## SOGs accuracy (`cargo run -p hal-sim --release -- accuracy --tries {}{flags}`)\n\nMotion noise fed to the filter in every case but `Imu` (true displacement plus errors, to isolate the estimator; `Imu` runs the firmware's own attitude filter and PDR on the simulated IMU): {}\n\n",
-        args.tries,
+        "## SOGs accuracy (`{command}`)\n\nMotion noise fed to the filter in every case but `Imu` (true displacement plus errors, to isolate the estimator; `Imu` runs the firmware's own attitude filter and PDR on the simulated IMU): {}\n\n",
         serde_json::to_string(&noise)?
     );
     let header_len = report.len();
@@ -1521,10 +1526,63 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
         }
     }
     if let Some(path) = &args.out {
-        std::fs::write(path, &report)?;
+        let side = sidecar(&command, args, &summary, &all_runs)?;
+        crate::sidecar::write(path, &report, side)?;
     }
     out.write_all(report.as_bytes())?;
     Ok(())
+}
+
+/// Keys of a run record that depend on the machine, not on the code.
+const VOLATILE: &[&str] = &["host_us_per_step"];
+
+/// The report's sidecar: per-case headline numbers and the first seed's run of each case.
+fn sidecar(
+    command: &str,
+    args: &Args,
+    summary: &[(Case, Option<SummaryRow>)],
+    runs: &[(Case, RunResult)],
+) -> anyhow::Result<crate::sidecar::Sidecar> {
+    let mut headline = serde_json::Map::new();
+    for (case, row) in summary {
+        let value = row.map_or(serde_json::Value::Null, |r| {
+            serde_json::json!({
+                "final_error_m_median": r.median_m,
+                "final_error_m_max": r.max_m,
+                "inside_3sigma_pct": r.inside_3sigma_pct,
+                "bound_median_m": r.bound_median_m,
+            })
+        });
+        headline.insert(format!("{case:?}"), value);
+    }
+    let check = runs
+        .iter()
+        .filter(|(_, r)| r.seed == args.first_seed)
+        .map(|(case, r)| {
+            Ok(serde_json::json!({"case": case, "run": crate::sidecar::record(r, VOLATILE)?}))
+        })
+        .collect::<anyhow::Result<_>>()?;
+    Ok(crate::sidecar::Sidecar {
+        report: "accuracy".into(),
+        command: command.into(),
+        first_seed: args.first_seed,
+        tries: args.tries,
+        markdown_fnv64: String::new(),
+        summary: serde_json::Value::Object(headline),
+        check,
+    })
+}
+
+/// Re-runs one sidecar record (its case and seed) with the current code and default noise.
+pub fn rerun(record: &serde_json::Value) -> anyhow::Result<serde_json::Value> {
+    let case: Case = serde_json::from_value(record["case"].clone())?;
+    let seed = record["run"]["seed"]
+        .as_u64()
+        .ok_or_else(|| anyhow::anyhow!("record without a seed"))?;
+    let run = run_case(case, seed, 1, &MotionNoise::default())
+        .pop()
+        .ok_or_else(|| anyhow::anyhow!("no run"))?;
+    Ok(serde_json::json!({"case": case, "run": crate::sidecar::record(&run, VOLATILE)?}))
 }
 
 #[cfg(test)]

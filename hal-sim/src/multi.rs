@@ -59,7 +59,7 @@ const OFFSET_NOISE_HZ: f64 = 2.0;
 const TIMING_NOISE_S: f64 = 0.001;
 
 /// How the victims are laid out.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize, clap::ValueEnum)]
 pub enum Layout {
     /// Victims 8–25 m from the first one, periods drawn freely.
     Spread,
@@ -719,14 +719,13 @@ pub fn victims_for(seed: u64) -> usize {
 
 /// Runs every layout and writes the report.
 pub fn report(args: &Args, out: &mut dyn std::io::Write) -> anyhow::Result<()> {
+    use indicatif::ParallelProgressIterator as _;
     use rayon::prelude::*;
     if let Some(spec) = &args.trace {
         return trace(spec);
     }
-    let mut md = String::new();
-    let _ = writeln!(
-        md,
-        "## Multiple burials (`cargo run -p hal-sim --release -- multi-report --tries {}{}`)\n",
+    let command = format!(
+        "cargo run -p hal-sim --release -- multi-report --tries {}{}",
         args.tries,
         if args.first_seed == 1 {
             String::new()
@@ -734,12 +733,18 @@ pub fn report(args: &Args, out: &mut dyn std::io::Write) -> anyhow::Result<()> {
             format!(" --first-seed {}", args.first_seed)
         }
     );
+    let mut md = String::new();
+    let _ = writeln!(md, "## Multiple burials (`{command}`)\n");
     md.push_str(PROTOCOL);
     let mut all: Vec<MultiOutcome> = Vec::new();
     for layout in Layout::ALL {
         let seeds = args.first_seed..args.first_seed.saturating_add(args.tries);
         let runs: Vec<MultiOutcome> = seeds
             .into_par_iter()
+            .progress_with(crate::progress::bar(
+                args.tries,
+                &format!("{layout:?} rescues"),
+            ))
             .map(|seed| run(&MultiConfig::new(seed, victims_for(seed), layout)))
             .collect::<anyhow::Result<_>>()?;
         md.push_str(&layout_report(layout, &runs));
@@ -757,10 +762,67 @@ pub fn report(args: &Args, out: &mut dyn std::io::Write) -> anyhow::Result<()> {
         std::fs::write(p, s)?;
     }
     if let Some(p) = &args.out {
-        std::fs::write(p, &md)?;
+        crate::sidecar::write(p, &md, sidecar(&command, args, &all)?)?;
     }
     out.write_all(md.as_bytes())?;
     Ok(())
+}
+
+/// The report's sidecar: per-layout headline numbers and the first seeds' rescues.
+fn sidecar(
+    command: &str,
+    args: &Args,
+    all: &[MultiOutcome],
+) -> anyhow::Result<crate::sidecar::Sidecar> {
+    let mut headline = serde_json::Map::new();
+    for layout in Layout::ALL {
+        let runs: Vec<&MultiOutcome> = all.iter().filter(|r| r.layout == layout).collect();
+        let victims: usize = runs.iter().map(|r| r.victims.len()).sum();
+        let found: usize = runs
+            .iter()
+            .map(|r| r.victims.iter().filter(|v| v.found).count())
+            .sum();
+        let errors = runs
+            .iter()
+            .flat_map(|r| r.victims.iter().map(|v| v.error_h_m));
+        headline.insert(
+            format!("{layout:?}"),
+            serde_json::json!({
+                "rescues": runs.len(),
+                "victims": victims,
+                "found": found,
+                "wrong_victim_marks": runs.iter().map(|r| r.wrong_marks()).sum::<usize>(),
+                "reinitializations": runs.iter().map(|r| r.reinitializations).sum::<u32>(),
+                "error_h_m_max_mean_median": stats(errors),
+            }),
+        );
+    }
+    let check = all
+        .iter()
+        .filter(|r| {
+            r.seed < args.first_seed + crate::sidecar::CHECK_SEEDS && r.layout == Layout::ALL[0]
+        })
+        .map(|r| crate::sidecar::record(r, &[]))
+        .collect::<anyhow::Result<_>>()?;
+    Ok(crate::sidecar::Sidecar {
+        report: "multi-report".into(),
+        command: command.into(),
+        first_seed: args.first_seed,
+        tries: args.tries,
+        markdown_fnv64: String::new(),
+        summary: serde_json::Value::Object(headline),
+        check,
+    })
+}
+
+/// Re-runs one sidecar record (its seed and layout) with the current code.
+pub fn rerun(record: &serde_json::Value) -> anyhow::Result<serde_json::Value> {
+    let layout: Layout = serde_json::from_value(record["layout"].clone())?;
+    let seed = record["seed"]
+        .as_u64()
+        .ok_or_else(|| anyhow::anyhow!("record without a seed"))?;
+    let o = run(&MultiConfig::new(seed, victims_for(seed), layout))?;
+    crate::sidecar::record(&o, &[])
 }
 
 /// Runs one rescue (`SEED,LAYOUT`) with the trace on.

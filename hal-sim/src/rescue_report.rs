@@ -56,7 +56,9 @@ pub struct Args {
 }
 
 /// The compared searches.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, clap::ValueEnum)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum,
+)]
 pub enum Case {
     /// The receiver (SOGs + search control), calibrated step length.
     SogCalibrated,
@@ -460,9 +462,11 @@ fn run_case_with(
     tries: u64,
     probe_radius_m: Option<f64>,
 ) -> anyhow::Result<Vec<Rescue>> {
+    use indicatif::ParallelProgressIterator as _;
     use rayon::prelude::*;
     (first..first + tries)
         .into_par_iter()
+        .progress_with(crate::progress::bar(tries, &format!("{case:?} rescues")))
         .map(|seed| run_one_with(case, seed, probe_radius_m))
         .collect()
 }
@@ -1025,16 +1029,16 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
         let radii: Vec<String> = args.probe_tradeoff.iter().map(|r| format!("{r}")).collect();
         format!(" --probe-tradeoff {}", radii.join(","))
     };
-    let mut report = format!(
-        "## Closed-loop rescues (`cargo run -p hal-sim --release -- rescue-report --tries {}{}{tradeoff}`)\n\n{}\n\n",
+    let command = format!(
+        "cargo run -p hal-sim --release -- rescue-report --tries {}{}{tradeoff}",
         args.tries,
         if args.first_seed == 1 {
             String::new()
         } else {
             format!(" --first-seed {}", args.first_seed)
         },
-        PROTOCOL
     );
+    let mut report = format!("## Closed-loop rescues (`{command}`)\n\n{PROTOCOL}\n\n");
     let mut all = Vec::new();
     let cases: &[Case] = if args.calibrated_only {
         &[Case::SogCalibrated]
@@ -1069,10 +1073,76 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
         }
     }
     if let Some(path) = &args.out {
-        std::fs::write(path, &report)?;
+        let side = sidecar(&command, args, cases, &all)?;
+        crate::sidecar::write(path, &report, side)?;
     }
     out.write_all(report.as_bytes())?;
     Ok(())
+}
+
+/// Keys of a [`Rescue`] record that do not come from the code (none today).
+const VOLATILE: &[&str] = &[];
+
+/// The report's sidecar: per-case headline numbers and the first seeds' records (every
+/// seed of [`crate::sidecar::CHECK_SEEDS`] for the first case, the first seed of the others).
+fn sidecar(
+    command: &str,
+    args: &Args,
+    cases: &[Case],
+    all: &[Rescue],
+) -> anyhow::Result<crate::sidecar::Sidecar> {
+    let mut summary = serde_json::Map::new();
+    for &case in cases {
+        let runs: Vec<&Rescue> = all.iter().filter(|r| r.case == case).collect();
+        let ratio = stats(
+            runs.iter()
+                .map(|r| r.steps.zip(r.ideal_steps).map(|(a, b)| a / b.max(1e-9))),
+        );
+        summary.insert(
+            serde_json::to_value(case)?
+                .as_str()
+                .unwrap_or("case")
+                .to_owned(),
+            serde_json::json!({
+                "runs": runs.len(),
+                "probe_here": runs.iter().filter(|r| r.steps.is_some()).count(),
+                "failed": runs.iter().filter(|r| r.failed).count(),
+                "error_h_m_max_mean_median": stats(runs.iter().map(|r| r.error_h_m)),
+                "steps_over_ideal_max_mean_median": ratio,
+            }),
+        );
+    }
+    let first_case = cases.first().copied();
+    let check = all
+        .iter()
+        .filter(|r| {
+            let seeds = if Some(r.case) == first_case {
+                crate::sidecar::CHECK_SEEDS
+            } else {
+                1
+            };
+            r.seed < args.first_seed + seeds
+        })
+        .map(|r| crate::sidecar::record(r, VOLATILE))
+        .collect::<anyhow::Result<_>>()?;
+    Ok(crate::sidecar::Sidecar {
+        report: "rescue-report".into(),
+        command: command.into(),
+        first_seed: args.first_seed,
+        tries: args.tries,
+        markdown_fnv64: String::new(),
+        summary: serde_json::Value::Object(summary),
+        check,
+    })
+}
+
+/// Re-runs one sidecar record (its case and seed) with the current code.
+pub fn rerun(record: &serde_json::Value) -> anyhow::Result<serde_json::Value> {
+    let case: Case = serde_json::from_value(record["case"].clone())?;
+    let seed = record["seed"]
+        .as_u64()
+        .ok_or_else(|| anyhow::anyhow!("record without a seed"))?;
+    crate::sidecar::record(&run_one(case, seed)?, VOLATILE)
 }
 
 /// How to read the phase tables and follow one rescue; the constants they justify are
