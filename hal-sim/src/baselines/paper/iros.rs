@@ -409,9 +409,9 @@ pub fn reading(sog: &[IrosRun], rbpf: &[Vec<IrosRun>]) -> String {
     let (Some(no_rough), Some(no_reinit)) = (rbpf.get(1), rbpf.get(2)) else {
         return s;
     };
-    let _ = write!(
+    let _ = writeln!(
         s,
-        "Our two additions each rescue most of those: without roughening {}, without re-initialization {}; with both, {}. Even our RBPF is over-confident at the end (the truth outside its reported 3σ in {} of {} tries, the SOGs filter in {} of {}): 5000 particles over the 7-D sampled state cannot represent a posterior that narrows to centimetres. The SOGs filter's errors are below the paper's: our pulses carry the noise of ICRA eq. 10 with the firmware's calibrated σ_bkg and k_sen, and the paper does not give its noise levels.\n",
+        "Our two additions each rescue most of those: without roughening {}, without re-initialization {}; with both, {}. Even our RBPF is over-confident at the end (the truth outside its reported 3σ in {} of {} tries, the SOGs filter in {} of {}): 5000 particles over the 7-D sampled state cannot represent a posterior that narrows to centimetres. The SOGs filter's errors are below the paper's: our pulses carry the noise of ICRA eq. 10 with the firmware's calibrated σ_bkg and k_sen, and the paper does not give its noise levels.",
         line(no_rough),
         line(no_reinit),
         line(ours),
