@@ -2,43 +2,12 @@
 //! board's order, with a byte-order mark, torn, with garbage, concatenated, with lost
 //! records (`seq`), piped into `head`, and fed live on standard input.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+mod common;
+
+use common::{hal_sim, is_pulse, joined, simulated, t_of, text};
 use std::io::{BufRead, BufReader, Write};
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
-
-fn hal_sim(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_hal-sim"))
-        .args(args)
-        .output()
-        .unwrap()
-}
-
-fn text(b: &[u8]) -> String {
-    String::from_utf8_lossy(b).into_owned()
-}
-
-/// A 40 s simulated search: (directory, its log lines).
-fn simulated(tmp: &Path) -> (PathBuf, Vec<String>) {
-    let dir = tmp.join("sim");
-    let out = hal_sim(&[
-        "simulate",
-        "--preset",
-        "paper",
-        "--seed",
-        "3",
-        "--max-duration-s",
-        "40",
-        "--out",
-        dir.to_str().unwrap(),
-    ]);
-    assert!(out.status.success(), "{}", text(&out.stderr));
-    let lines = std::fs::read_to_string(dir.join("session.jsonl"))
-        .unwrap()
-        .lines()
-        .map(String::from)
-        .collect();
-    (dir, lines)
-}
+use std::path::Path;
+use std::process::{Command, Stdio};
 
 /// Replays `log` (bytes) with the simulation's receiver.json: (stdout lines, stderr, ok).
 fn replay(dir: &Path, name: &str, log: &[u8], extra: &[&str]) -> (Vec<String>, String, bool) {
@@ -55,21 +24,6 @@ fn replay(dir: &Path, name: &str, log: &[u8], extra: &[&str]) -> (Vec<String>, S
     let out = hal_sim(&args);
     let lines = text(&out.stdout).lines().map(String::from).collect();
     (lines, text(&out.stderr), out.status.success())
-}
-
-fn joined(lines: &[String]) -> Vec<u8> {
-    let mut s = lines.join("\n");
-    s.push('\n');
-    s.into_bytes()
-}
-
-fn is_pulse(l: &str) -> bool {
-    l.contains("\"type\":\"pulse\"")
-}
-
-fn t_of(l: &str) -> f64 {
-    let v: serde_json::Value = serde_json::from_str(l).unwrap();
-    v["t"].as_f64().unwrap()
 }
 
 #[test]

@@ -4,8 +4,9 @@
 //! ([`watchdog`]), the crash record kept across a reset ([`crash`]), the guarded and
 //! recoverable I2C bus ([`i2c_bus`]), the sensor-fault and battery display
 //! ([`health`]), the guidance tones ([`sound`]) and the session log on the microSD card
-//! ([`sd_log`]).
+//! ([`sd_log`]) with the device events a replay needs ([`board_log`]).
 
+pub mod board_log;
 pub mod crash;
 pub mod health;
 pub mod i2c_bus;
