@@ -321,6 +321,48 @@ fn write_line(out: &mut impl Write, v: &Tagged<'_>) -> std::io::Result<()> {
     out.write_all(b"\n")
 }
 
+/// Writes `session` as a receiver writes it (the spec's writer rules): each pulse record
+/// when its front end finished it — `written_t[k]` for the k-th pulse, at or after its
+/// own `t`, i.e. after the records up to then — instead of sorted by `t`, and every
+/// record after the header numbered by `seq` (0, 1, …) in file order. Records other than
+/// pulses keep their `t` order; events are not written (a simulation has none).
+pub fn write_as_written(
+    session: &Session,
+    written_t: &[f64],
+    out: &mut impl Write,
+) -> std::io::Result<()> {
+    write_line(out, &Tagged::Header(&session.header))?;
+    let mut seq = 0u64;
+    let mut put = |out: &mut dyn Write, r: &Record| -> std::io::Result<()> {
+        let mut line = Vec::new();
+        write_record(&mut line, r)?;
+        // `{"type":…` → `{"seq":n,"type":…`
+        out.write_all(format!("{{\"seq\":{seq},").as_bytes())?;
+        out.write_all(line.get(1..).unwrap_or_default())?;
+        seq += 1;
+        Ok(())
+    };
+    let mut held: std::collections::VecDeque<(f64, &Record)> = Default::default();
+    let mut k = 0;
+    for r in &session.records {
+        if let Record::Pulse(p) = r {
+            let w = written_t.get(k).copied().unwrap_or(p.t).max(p.t);
+            k += 1;
+            held.push_back((w, r));
+            continue;
+        }
+        while let Some((_, p)) = held.front().filter(|(w, _)| *w <= r.t()).copied() {
+            put(out, p)?;
+            held.pop_front();
+        }
+        put(out, r)?;
+    }
+    for (_, p) in held {
+        put(out, p)?;
+    }
+    Ok(())
+}
+
 /// Reads a whole single-segment session log from a file (see [`read`]).
 pub fn read_file(path: &Path) -> Result<Session, SessionError> {
     let f = std::fs::File::open(path)?;
