@@ -191,7 +191,7 @@ pub fn run(seed: u64) -> anyhow::Result<ClassicOutcome> {
         }
         let yaw = motion.attitude().0.z;
         seen.push_back(Seen {
-            display: classic.display(p1.t as f32, yaw),
+            display: classic.display(p1.t as f32, yaw).into(),
             out: *classic.output(),
             psi: person.psi,
         });
