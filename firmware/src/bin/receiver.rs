@@ -77,7 +77,7 @@ use firmware::board::watchdog::{MonotonicMs, ProgressWatch, Verdict, Work};
 use firmware::board::{self, BoardProfile, pins};
 use firmware::drivers::ads131m04::Ads131m04;
 use firmware::drivers::imu::Imu;
-use firmware::frontend::{Frontend, PulseMeasurement};
+use firmware::frontend::{Frontend, IfRange, PulseMeasurement, RangeChange};
 use firmware::timebase::{ClockEvent, SampleClock};
 use firmware::victims::MarkButton;
 use firmware::{display, session_log};
@@ -85,7 +85,7 @@ use heapless::spsc::{Consumer, Producer, Queue};
 use ssd1306::{I2CDisplayInterface, Ssd1306, prelude::*};
 use stm32f4xx_hal::adc::Adc;
 use stm32f4xx_hal::adc::config::{AdcConfig, SampleTime};
-use stm32f4xx_hal::gpio::{Edge, ExtiPin, Input, OpenDrain, Output, PB6, PB7, PC7};
+use stm32f4xx_hal::gpio::{Edge, ExtiPin, Input, OpenDrain, Output, PB6, PB7, PC3, PC7};
 use stm32f4xx_hal::i2c::I2c;
 use stm32f4xx_hal::rcc::Rcc;
 use stm32f4xx_hal::watchdog::IndependentWatchdog;
@@ -387,6 +387,36 @@ fn watch_adc(event: ClockEvent) -> ClockEvent {
     event
 }
 
+/// Applies the DSP's change of analog setting (gain ranging): the coils' PGA gain in one
+/// register write (inside the DRDY handler's critical section) and the IF range switch.
+/// Samples already queued were taken in the old setting: the DSP discards them with the
+/// switch's settling. A failed gain write puts the switch and the DSP back on `from`.
+fn apply_range(frontend: &mut Frontend, pin: &mut PC3<Output>, change: RangeChange, queued: usize) {
+    let set_pin = |pin: &mut PC3<Output>, r: IfRange| match r {
+        IfRange::High => pin.set_low(),
+        IfRange::Low => pin.set_high(),
+    };
+    let gain_ok = cortex_m::interrupt::free(|cs| {
+        SAMPLER
+            .borrow(cs)
+            .borrow_mut()
+            .as_mut()
+            .is_some_and(|s| s.adc.set_coil_gains(change.to.gain).is_ok())
+    });
+    if gain_ok {
+        set_pin(pin, change.to.if_range);
+        frontend.extend_settle(queued);
+        defmt::info!("range {} -> {} ({})", change.from, change.to, change.reason);
+    } else {
+        set_pin(pin, change.from.if_range);
+        if frontend.set_range(change.from).is_err() {
+            defmt::error!("front end refused its own setting");
+        }
+        frontend.extend_settle(queued);
+        defmt::warn!("PGA write failed: staying at {}", change.from);
+    }
+}
+
 /// Clears `screen` and draws `model` with the health overlay (a sensor fault over the
 /// status word, the battery gauge) on it; false if the display did not take it.
 fn show(
@@ -556,6 +586,10 @@ fn main() -> ! {
     let mut sound_button = MarkButton::new(gpioc.pc2.into_pull_up_input());
     let mut muted = !SOUND_ON;
     let mut chirp_until_ms = 0u64;
+    // The IF range switch starts in the high range, the ADC at the profile's gain: the
+    // DSP's starting setting (`BoardProfile::start_range`).
+    let mut if_range = gpioc.pc3.into_push_pull_output();
+    if_range.set_low();
     let mut drdy = gpioc.pc7.into_pull_up_input();
     drdy.make_interrupt_source(&mut syscfg);
     drdy.trigger_on_edge(&mut exti, Edge::Falling);
@@ -634,6 +668,9 @@ fn main() -> ! {
                 }
                 Ok(None) => {}
                 Err(_) => defmt::warn!("front end refused a sample"),
+            }
+            if let Some(change) = frontend.take_range_change() {
+                apply_range(frontend, &mut if_range, change, consumer.len());
             }
         }
         watch.progress(Work::Samples, ms_clock.now_ms(DWT::cycle_count()));

@@ -23,6 +23,7 @@
 //! | battery voltage, ½ of BAT through the Feather's 2 × 100 kΩ divider | — (on board) | PA3 | ADC1 IN3 |
 //! | buzzer (passive piezo to ground), guidance tones | D9 | PB8 | TIM4 CH3 PWM (AF2) |
 //! | sound button (to ground, internal pull-up): mutes and unmutes the tones | D12 | PC2 | GPIO input |
+//! | IF range switch of the antenna's analog chain (high = low range, `frontend::ranging`) | D11 | PC3 | GPIO output |
 //!
 //! Not used and kept free: D8/PC0 (NeoPixel), the 2 MB
 //! SPI flash (PB3/PB4/PB5, CS PA15), the microSD slot on SDIO (PC8–PC12, PD2; card detect
@@ -95,7 +96,7 @@ pub const FEATHER_ON_BOARD: [(&str, P); 13] = [
 ];
 
 /// The receiver's pins (the module table; the board binary binds exactly these).
-pub const ASSIGNMENTS: [Assignment; 13] = [
+pub const ASSIGNMENTS: [Assignment; 14] = [
     a("antenna ADC SCK", P('B', 13), Site::Header("SCK")),
     a("antenna ADC MISO", P('B', 14), Site::Header("MISO")),
     a("antenna ADC MOSI", P('B', 15), Site::Header("MOSI")),
@@ -109,6 +110,7 @@ pub const ASSIGNMENTS: [Assignment; 13] = [
     a("battery divider", BATTERY, Site::OnBoard("V_DIV")),
     a("buzzer", P('B', 8), Site::Header("D9")),
     a("sound button", P('C', 2), Site::Header("D12")),
+    a("IF range switch", IF_RANGE, Site::Header("D11")),
 ];
 
 /// The antenna ADC's chip select (D10).
@@ -121,6 +123,8 @@ pub const I2C_SCL: P = P('B', 6);
 pub const I2C_SDA: P = P('B', 7);
 /// The fault LED (the Feather's red LED on D13).
 pub const FAULT_LED: P = P('C', 1);
+/// The IF range switch's control (D11; high selects the low range).
+pub const IF_RANGE: P = P('C', 3);
 /// The battery divider's tap (ADC1 channel 3).
 pub const BATTERY: P = P('A', 3);
 /// The battery divider's ratio: BAT = ratio × V(PA3) (two 100 kΩ resistors).
