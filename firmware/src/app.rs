@@ -38,7 +38,7 @@
 use core::mem::MaybeUninit;
 
 use crate::Vec3;
-use crate::classic::{ClassicConfig, ClassicError, ClassicSearch};
+use crate::classic::{ClassicConfig, ClassicError, ClassicScreen, ClassicSearch};
 use crate::estimate::{
     self, Attitude, EstimateError, Estimator, SogConfig, StepOutcome, VictimEstimate,
 };
@@ -207,6 +207,22 @@ pub struct DisplayModel {
     pub target: Option<u8>,
     /// Victims marked as found.
     pub found: u8,
+}
+
+/// The classic mode's screen as the display model: one transmitter at most, no estimate.
+impl From<ClassicScreen> for DisplayModel {
+    fn from(c: ClassicScreen) -> Self {
+        Self {
+            status: c.status,
+            arrow_deg: c.arrow_deg,
+            distance_m: c.distance_m,
+            walk_m: c.walk_m,
+            victims: u8::from(c.pulses > 0),
+            pulses: c.pulses,
+            t_s: c.t_s,
+            ..Self::default()
+        }
+    }
 }
 
 /// One line of the victim list.
@@ -750,7 +766,7 @@ impl Receiver {
             return DisplayModel {
                 overlap: self.overlap,
                 height_m: self.height_m(),
-                ..c.display(self.t_now, yaw)
+                ..DisplayModel::from(c.display(self.t_now, yaw))
             };
         }
         let timed_out = self.target_timed_out();
