@@ -79,6 +79,7 @@ use firmware::board::crash::{self, CrashKind, CrashRecord, LastReset};
 use firmware::board::health::{self, Battery, BatteryState, Fault, SensorHealth};
 use firmware::board::i2c_bus::{self, ClearError, Cleared, Guarded, Recoverable};
 use firmware::board::sd_log::SdState;
+use firmware::board::settings::{self, Settings};
 use firmware::board::sound::{self, SoundInput};
 use firmware::board::watchdog::{MonotonicMs, ProgressWatch, Verdict, Work};
 use firmware::board::{self, BoardProfile, pins};
@@ -486,26 +487,54 @@ fn main() -> ! {
         fatal("USART3 configuration refused");
     };
     let mut log = BoardLog::new(sd, UART_LOG.then_some(uart));
-    let earth = PROFILE.default_earth_field();
+    // The unit's settings from flash sector 11 (defaults, with the reason, when erased or
+    // corrupt).
+    // SAFETY: SETTINGS_LEN bytes of memory-mapped flash inside the reserved sector
+    // (memory.x), always readable; nothing writes flash while this boot reads it.
+    let stored = unsafe {
+        core::slice::from_raw_parts(settings::SETTINGS_ADDR as *const u8, settings::SETTINGS_LEN)
+    };
+    let (settings, settings_error) = Settings::load(stored);
+    let step_length_m = settings
+        .calibration
+        .step_length_m
+        .or(PROFILE.defaults.step_length_m);
+    let earth = settings.earth_field();
     log.header(PROFILE.imu.rate_hz, &earth, true);
     log.reset(0.0, &last_reset);
+    let region = settings::REGIONS
+        .get(usize::from(settings.region))
+        .map_or("?", |r| r.name);
     log.event(
         0.0,
         "settings",
-        None,
+        Some(if settings_error.is_some() {
+            "defaults"
+        } else {
+            "stored"
+        }),
         &[
             // "none": not calibrated (the step detector's default length applies).
             (
                 "step_length_m",
-                PROFILE
-                    .defaults
-                    .step_length_m
-                    .map_or(Detail::Text("none"), Detail::Num),
+                step_length_m.map_or(Detail::Text("none"), Detail::Num),
             ),
             ("mode", Detail::Text("sog")),
-            ("sound", Detail::Flag(SOUND_ON)),
+            ("volume", Detail::Int(i64::from(settings.volume))),
+            ("region", Detail::Text(region)),
+            (
+                "antenna_cal",
+                Detail::Flag(settings.calibration.antenna.is_some()),
+            ),
+            ("mag_cal", Detail::Flag(settings.calibration.mag.is_some())),
         ],
     );
+    if let Some(e) = settings_error {
+        defmt::warn!("settings: {}; defaults apply", e);
+    }
+    // The logged and processed magnetometer reading is the calibrated one (the spec's
+    // body-frame field), so a replay needs no calibration of its own.
+    let mag_cal = settings.calibration.mag;
     match log.sd_state() {
         SdState::Logging(n) => defmt::info!("SD card: logging to session {=u16}", n),
         SdState::NoCard => defmt::warn!("SD card: none inserted, log on UART only"),
@@ -590,7 +619,7 @@ fn main() -> ! {
     }
 
     // The application in SRAM.
-    let cfg = PROFILE.app_config(earth, PROFILE.defaults.step_length_m);
+    let cfg = PROFILE.app_config(earth, step_length_m);
     // SAFETY: the only reference ever taken to RECEIVER, here, once, before any interrupt
     // that could run is enabled; no interrupt touches it.
     let slot = unsafe { &mut *core::ptr::addr_of_mut!(RECEIVER) };
@@ -598,7 +627,7 @@ fn main() -> ! {
         fatal("default configuration refused");
     };
     // The nominal calibration of the design until the unit's bench calibration is stored.
-    let fe_cfg = PROFILE.frontend_config(&PROFILE.analog.nominal);
+    let fe_cfg = PROFILE.frontend_config(&settings.calibration.antenna_or(&PROFILE.analog.nominal));
     let rate = fe_cfg.sample_rate_hz;
     let Ok(new_frontend) = Frontend::new(fe_cfg) else {
         fatal("front-end configuration refused");
@@ -616,7 +645,8 @@ fn main() -> ! {
     let mut mark = MarkButton::new(gpioc.pc6.into_pull_up_input());
     // The sound button: the same debounced press, on D12.
     let mut sound_button = MarkButton::new(gpioc.pc2.into_pull_up_input());
-    let mut muted = !SOUND_ON;
+    // Volume steps are not wired to the buzzer yet (50 % duty): 0 mutes.
+    let mut muted = !SOUND_ON || settings.volume == 0;
     let mut chirp_until_ms = 0u64;
     let mut drdy = gpioc.pc7.into_pull_up_input();
     drdy.make_interrupt_source(&mut syscfg);
@@ -811,8 +841,9 @@ fn main() -> ! {
                 last_imu_t = t;
                 match imu.read() {
                     Ok(r) => {
-                        log.imu(f64::from(t), &r.acc, &r.gyr, Some(&r.mag));
-                        if receiver.on_imu(t, &r.acc, &r.gyr, Some(&r.mag)).is_err() {
+                        let mag = mag_cal.map_or(r.mag, |c| c.apply(&r.mag));
+                        log.imu(f64::from(t), &r.acc, &r.gyr, Some(&mag));
+                        if receiver.on_imu(t, &r.acc, &r.gyr, Some(&mag)).is_err() {
                             defmt::warn!("IMU sample refused");
                         }
                         sensors.imu_read(true);
