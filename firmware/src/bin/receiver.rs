@@ -465,7 +465,8 @@ fn main() -> ! {
     // Session log first, so everything after it can be recorded: the microSD card (its
     // bring-up marked in the crash record, see SD_INIT_MARK) and the UART stream.
     let gpiod = dp.GPIOD.split(&mut rcc);
-    let card_in = gpiob.pb12.into_pull_up_input().is_low();
+    // The switch is read after the SDIO set-up, so the pull-up has settled.
+    let card_detect = gpiob.pb12.into_pull_up_input();
     let sdio = stm32f4xx_hal::sdio::Sdio::new(
         dp.SDIO,
         (
@@ -473,6 +474,7 @@ fn main() -> ! {
         ),
         &mut rcc,
     );
+    let card_in = card_detect.is_low();
     let skip_sd = matches!(last_reset, LastReset::Starved(m) if m == SD_INIT_MARK);
     store_crash(&CrashRecord::new(
         CrashKind::Starved,
