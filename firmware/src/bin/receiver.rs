@@ -78,7 +78,7 @@ use firmware::board::{self, BoardProfile, pins};
 use firmware::drivers::ads131m04::Ads131m04;
 use firmware::drivers::imu::Imu;
 use firmware::frontend::{Frontend, PulseMeasurement};
-use firmware::timebase::{ClockEvent, SampleClock};
+use firmware::timebase::{ClockEvent, Instant, SampleClock, pulse_centre_us};
 use firmware::victims::MarkButton;
 use firmware::{display, session_log};
 use heapless::spsc::{Consumer, Producer, Queue};
@@ -93,8 +93,8 @@ use stm32f4xx_hal::{interrupt, pac, prelude::*, rcc::Config, spi};
 
 /// The board this binary runs on: analog chain, ADC, IMU mounting and rates, defaults.
 const PROFILE: BoardProfile = board::REFERENCE;
-/// Longest time (s) the screen goes without a redraw when no pulse redraws it.
-const REDRAW_MAX_S: f32 = 1.0;
+/// Longest time (µs) the screen goes without a redraw when no pulse redraws it.
+const REDRAW_MAX_US: u64 = 1_000_000;
 /// ADC frames buffered between the DRDY interrupt and the main loop: 250 ms at 8 kSPS,
 /// room for the worst estimator step plus a display flush.
 const QUEUE_LEN: usize = 2048;
@@ -582,9 +582,9 @@ fn main() -> ! {
     let Ok(mut clock) = SampleClock::new(rate, IMU_HZ, taken) else {
         fatal("sample clock refused its rates");
     };
-    let mut last_imu_t = f32::NEG_INFINITY;
+    let mut last_imu_t: Option<Instant> = None;
     // Board time of the last redraw.
-    let mut drawn_s = f32::NEG_INFINITY;
+    let mut drawn: Option<Instant> = None;
     // Progress of the main loop's work, on the cycle counter's clock.
     let mut ms_clock = MonotonicMs::new(SYSCLK_HZ / 1000, DWT::cycle_count());
     let mut watch = ProgressWatch::new(PROGRESS_LIMIT_MS, ms_clock.now_ms(DWT::cycle_count()));
@@ -608,12 +608,15 @@ fn main() -> ! {
             match frontend.push(sample.volts, sample.clipped) {
                 Ok(Some(pulse)) => {
                     // The DSP counts only the samples it saw: stalls are added back.
-                    let t_pulse = pulse.t_s + clock.offset_s();
+                    let t_pulse = Instant::from_micros(
+                        pulse_centre_us(pulse.start_sample, pulse.duration_s, rate)
+                            + clock.offset_us(),
+                    );
                     let model = match pulse.measurement {
                         PulseMeasurement::Field(h) => {
                             let _ = session_log::write_pulse(
                                 &mut log,
-                                f64::from(t_pulse),
+                                t_pulse.secs_f64(),
                                 &h,
                                 pulse.src,
                             );
@@ -626,7 +629,7 @@ fn main() -> ! {
                         shown = model;
                     }
                     if let Some(model) = model.filter(|_| screen_ok) {
-                        drawn_s = clock.now_s();
+                        drawn = Some(clock.now());
                         if !show(&mut screen, &model, fault, battery.state()) {
                             defmt::warn!("display write failed");
                         }
@@ -672,7 +675,7 @@ fn main() -> ! {
                 }
                 redraw = true;
             }
-            let t = clock.now_s();
+            let t = clock.now();
             // A fault shows at once and is logged when it comes and goes.
             sensors.bus_stuck(bus.borrow().stuck());
             let now_fault = sensors.fault();
@@ -686,11 +689,13 @@ fn main() -> ! {
             }
             fault_led.set_state((fault.is_some() || !screen_ok).into());
             // Pulses redraw the screen; without them it is redrawn at least every
-            // REDRAW_MAX_S, so that "NO SIGNAL" and the arrow to a silent victim (carried
+            // REDRAW_MAX_US, so that "NO SIGNAL" and the arrow to a silent victim (carried
             // over the walk) show. Not at every tick: a flush holds the shared I2C bus
             // ≈ 25 ms, two or three IMU ticks.
-            if redraw || t - drawn_s >= REDRAW_MAX_S {
-                drawn_s = t;
+            if redraw
+                || drawn.is_none_or(|d| t.micros().saturating_sub(d.micros()) >= REDRAW_MAX_US)
+            {
+                drawn = Some(t);
                 shown = receiver.display_model();
                 if screen_ok && !show(&mut screen, &shown, fault, battery.state()) {
                     defmt::warn!("display write failed");
@@ -729,13 +734,13 @@ fn main() -> ! {
                 playing = tone;
             }
             // A short hole in the ADC's samples holds the clock: skip that tick's sample.
-            if let Some(imu) = imu.as_mut().filter(|_| t > last_imu_t) {
-                last_imu_t = t;
+            if let Some(imu) = imu.as_mut().filter(|_| last_imu_t.is_none_or(|l| t > l)) {
+                last_imu_t = Some(t);
                 match imu.read() {
                     Ok(r) => {
                         let _ = session_log::write_imu(
                             &mut log,
-                            f64::from(t),
+                            t.secs_f64(),
                             &r.acc,
                             &r.gyr,
                             Some(&r.mag),
