@@ -44,7 +44,7 @@
 use core::mem::MaybeUninit;
 
 use crate::Vec3;
-use crate::classic::{ClassicConfig, ClassicError, ClassicSearch};
+use crate::classic::{ClassicConfig, ClassicError, ClassicScreen, ClassicSearch};
 use crate::estimate::{
     self, Attitude, EstimateError, Estimator, SogConfig, StepOutcome, VictimEstimate,
 };
@@ -215,6 +215,23 @@ pub struct DisplayModel {
     pub target: Option<u8>,
     /// Victims marked as found.
     pub found: u8,
+}
+
+/// The classic mode's screen as the display model: one transmitter at most, no estimate.
+impl From<ClassicScreen> for DisplayModel {
+    fn from(c: ClassicScreen) -> Self {
+        Self {
+            status: c.status,
+            arrow_deg: c.arrow_deg,
+            distance_m: c.distance_m,
+            walk_m: c.walk_m,
+            victims: u8::from(c.pulses > 0),
+            pulses: c.pulses,
+            // Seconds from the receiver's epoch: the receiver puts it on its clock.
+            t_s: f64::from(c.t_s),
+            ..Self::default()
+        }
+    }
 }
 
 /// One line of the victim list.
@@ -847,8 +864,8 @@ impl Receiver {
                 overlap: self.overlap,
                 height_m: self.height_m(),
                 // The classic search reports its f32 time from the epoch.
-                t_s: self.epoch.secs_f64(d.t_s as f32),
-                ..d
+                t_s: self.epoch.secs_f64(d.t_s),
+                ..DisplayModel::from(d)
             };
         }
         let timed_out = self.target_timed_out();

@@ -57,7 +57,6 @@
 //! non-finite attitude) is refused with a [`ClassicError`] and leaves the state unchanged.
 
 use crate::Vec3;
-use crate::app::DisplayModel;
 use crate::estimate::{Attitude, Pulse};
 use crate::frame::{rotation_from_rpy, wrap_pi};
 use crate::guidance::{Status, flux_direction, relative_arrow, to_degrees_wrapped};
@@ -270,6 +269,24 @@ pub struct ClassicSearch {
     out: ClassicOutput,
 }
 
+/// What the classic mode shows; the application turns it into its display model (the
+/// classic mode sits below the application and does not know its screen).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ClassicScreen {
+    /// Status word.
+    pub status: Status,
+    /// Arrow relative to the device's heading, degrees, positive to the left; `None`: none.
+    pub arrow_deg: Option<f32>,
+    /// Distance estimated from |H|, m.
+    pub distance_m: Option<f32>,
+    /// Distance to walk along the arrow, m.
+    pub walk_m: Option<f32>,
+    /// Pulses taken so far.
+    pub pulses: u32,
+    /// Time of the last pulse, s (0 before the first).
+    pub t_s: f32,
+}
+
 impl ClassicSearch {
     /// Moves every stored time stamp `shift_s` s earlier: the clock's epoch moved that
     /// much later ([`crate::timebase::Epoch`]); durations are left as they are.
@@ -382,7 +399,7 @@ impl ClassicSearch {
 
     /// The screen at time `t_now` (s) with the device's current yaw (rad): the arrow is the
     /// output's bearing relative to the device; "no signal" after the timeout.
-    pub fn display(&self, t_now: f32, yaw: f32) -> DisplayModel {
+    pub fn display(&self, t_now: f32, yaw: f32) -> ClassicScreen {
         let lost = self
             .last_t
             .is_none_or(|t| t_now - t > self.cfg.signal_timeout_s);
@@ -400,15 +417,13 @@ impl ClassicSearch {
             .then_some(self.out.bearing)
             .flatten()
             .map(|b| to_degrees_wrapped(relative_arrow(b, yaw)));
-        DisplayModel {
+        ClassicScreen {
             status,
             arrow_deg: arrow,
             distance_m: self.out.distance_m,
             walk_m: self.out.walk_m,
-            victims: u8::from(self.pulses > 0),
             pulses: self.pulses,
-            t_s: f64::from(self.last_t.unwrap_or(0.0)),
-            ..DisplayModel::default()
+            t_s: self.last_t.unwrap_or(0.0),
         }
     }
 

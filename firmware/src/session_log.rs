@@ -52,6 +52,15 @@ fn write_vec(w: &mut impl Write, v: &Vec3, exp: bool) -> Result<(), LogError> {
     Ok(())
 }
 
+/// Ends a record: the optional `seq` key, then `}` and the newline.
+fn end(w: &mut impl Write, seq: Option<u64>) -> Result<(), LogError> {
+    if let Some(n) = seq {
+        write!(w, ",\"seq\":{n}")?;
+    }
+    writeln!(w, "}}")?;
+    Ok(())
+}
+
 /// The header line: IMU rate (Hz), the local earth field in the geographic frame (µT)
 /// and whether pulse signs are ambiguous.
 pub fn write_header(
@@ -60,14 +69,24 @@ pub fn write_header(
     earth_field_ut: &Vec3,
     sign_ambiguous: bool,
 ) -> Result<(), LogError> {
+    header(w, imu_hz, earth_field_ut, sign_ambiguous, None)
+}
+
+fn header(
+    w: &mut impl Write,
+    imu_hz: f32,
+    earth_field_ut: &Vec3,
+    sign_ambiguous: bool,
+    seq: Option<u64>,
+) -> Result<(), LogError> {
     check(&[imu_hz, earth_field_ut.x, earth_field_ut.y, earth_field_ut.z])?;
     write!(
         w,
         "{{\"type\":\"header\",\"format\":\"arva-session\",\"version\":1,\"imu_hz\":{imu_hz},\"earth_field_uT\":"
     )?;
     write_vec(w, earth_field_ut, false)?;
-    writeln!(w, ",\"sign_ambiguous\":{sign_ambiguous}}}")?;
-    Ok(())
+    write!(w, ",\"sign_ambiguous\":{sign_ambiguous}")?;
+    end(w, seq)
 }
 
 /// One IMU sample at time `t` (s); `mag` may be absent (magnetometer not read).
@@ -77,6 +96,17 @@ pub fn write_imu(
     acc: &Vec3,
     gyr: &Vec3,
     mag: Option<&Vec3>,
+) -> Result<(), LogError> {
+    imu(w, t, acc, gyr, mag, None)
+}
+
+fn imu(
+    w: &mut impl Write,
+    t: f64,
+    acc: &Vec3,
+    gyr: &Vec3,
+    mag: Option<&Vec3>,
+    seq: Option<u64>,
 ) -> Result<(), LogError> {
     check(acc.as_slice())?;
     check(gyr.as_slice())?;
@@ -94,13 +124,22 @@ pub fn write_imu(
         write!(w, ",\"mag\":")?;
         write_vec(w, m, false)?;
     }
-    writeln!(w, "}}")?;
-    Ok(())
+    end(w, seq)
 }
 
 /// One beacon pulse at time `t` (s) with field `h` (A/m, body frame) and, when the front
 /// end separates several transmitters, its track `src`.
 pub fn write_pulse(w: &mut impl Write, t: f64, h: &Vec3, src: Option<u8>) -> Result<(), LogError> {
+    pulse(w, t, h, src, None)
+}
+
+fn pulse(
+    w: &mut impl Write,
+    t: f64,
+    h: &Vec3,
+    src: Option<u8>,
+    seq: Option<u64>,
+) -> Result<(), LogError> {
     check(h.as_slice())?;
     if !t.is_finite() {
         return Err(LogError::NonFinite);
@@ -110,8 +149,7 @@ pub fn write_pulse(w: &mut impl Write, t: f64, h: &Vec3, src: Option<u8>) -> Res
     if let Some(s) = src {
         write!(w, ",\"src\":{s}")?;
     }
-    writeln!(w, "}}")?;
-    Ok(())
+    end(w, seq)
 }
 
 /// An event record at time `t` (s): `kind` is one of the spec's kinds (`"mark"`,
@@ -124,19 +162,202 @@ pub fn write_event(
     kind: &str,
     why: Option<&str>,
 ) -> Result<(), LogError> {
+    event(w, t, kind, why, &[], None)
+}
+
+/// A value of an event's extra key (the spec: "extra keys carry the details").
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Detail<'a> {
+    /// A JSON string (refused like `why` when it would need escaping).
+    Text(&'a str),
+    /// A JSON integer (counts, ids).
+    Int(i64),
+    /// A JSON number (refused when not finite).
+    Num(f32),
+    /// A JSON boolean.
+    Flag(bool),
+}
+
+/// Whether `s` can be written as a JSON string without escaping.
+fn plain(s: &str) -> bool {
+    !s.chars().any(|c| c == '"' || c == '\\' || c.is_control())
+}
+
+/// An event record with extra keys `details` (key, value) after `kind` and `why`; keys and
+/// text values are checked like `kind`, numbers for finiteness, all before anything is
+/// written.
+pub fn write_event_with(
+    w: &mut impl Write,
+    t: f64,
+    kind: &str,
+    why: Option<&str>,
+    details: &[(&str, Detail<'_>)],
+) -> Result<(), LogError> {
+    event(w, t, kind, why, details, None)
+}
+
+fn event(
+    w: &mut impl Write,
+    t: f64,
+    kind: &str,
+    why: Option<&str>,
+    details: &[(&str, Detail<'_>)],
+    seq: Option<u64>,
+) -> Result<(), LogError> {
     if !t.is_finite() {
         return Err(LogError::NonFinite);
     }
-    let plain = |s: &str| !s.chars().any(|c| c == '"' || c == '\\' || c.is_control());
     if !plain(kind) || !why.is_none_or(plain) {
         return Err(LogError::Invalid);
+    }
+    for (key, value) in details {
+        let reserved = matches!(*key, "type" | "t" | "kind" | "why" | "seq");
+        match value {
+            _ if reserved || !plain(key) => return Err(LogError::Invalid),
+            Detail::Text(s) if !plain(s) => return Err(LogError::Invalid),
+            Detail::Num(x) if !x.is_finite() => return Err(LogError::NonFinite),
+            _ => {}
+        }
     }
     write!(w, "{{\"type\":\"event\",\"t\":{t},\"kind\":\"{kind}\"")?;
     if let Some(why) = why {
         write!(w, ",\"why\":\"{why}\"")?;
     }
-    writeln!(w, "}}")?;
-    Ok(())
+    for (key, value) in details {
+        match value {
+            Detail::Text(s) => write!(w, ",\"{key}\":\"{s}\"")?,
+            Detail::Int(n) => write!(w, ",\"{key}\":{n}")?,
+            Detail::Num(x) => write!(w, ",\"{key}\":{x}")?,
+            Detail::Flag(b) => write!(w, ",\"{key}\":{b}")?,
+        }
+    }
+    end(w, seq)
+}
+
+/// What a [`Recorder`] did with the records it was given.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct RecorderStats {
+    /// Records written whole.
+    pub written: u64,
+    /// Records refused before anything was written (non-finite value, text needing
+    /// escaping): they take no `seq` number.
+    pub refused: u32,
+    /// Records the writer failed on (lost or torn): each took its `seq` number, so a reader
+    /// sees the gap.
+    pub failed: u32,
+}
+
+/// The board's session log: writes every record with `seq` (+1 per record, restarting at
+/// 0 with each header, as the spec's readers expect) and counts what was refused and what
+/// the writer failed on, so that no error is dropped silently.
+#[derive(Debug)]
+pub struct Recorder<W> {
+    w: W,
+    seq: u64,
+    stats: RecorderStats,
+}
+
+impl<W: Write> Recorder<W> {
+    /// A recorder writing to `w`; the first record should be a [`Recorder::header`].
+    pub fn new(w: W) -> Self {
+        Self {
+            w,
+            seq: 0,
+            stats: RecorderStats::default(),
+        }
+    }
+
+    /// Counts the outcome of one record; a write failure still uses up its `seq`.
+    fn count(&mut self, r: Result<(), LogError>) -> Result<(), LogError> {
+        match r {
+            Ok(()) => {
+                self.seq += 1;
+                self.stats.written += 1;
+            }
+            Err(LogError::Write) => {
+                self.seq += 1;
+                self.stats.failed = self.stats.failed.saturating_add(1);
+            }
+            Err(_) => self.stats.refused = self.stats.refused.saturating_add(1),
+        }
+        r
+    }
+
+    /// The header (starts a segment: `seq` restarts at 0).
+    pub fn header(
+        &mut self,
+        imu_hz: f32,
+        earth_field_ut: &Vec3,
+        sign_ambiguous: bool,
+    ) -> Result<(), LogError> {
+        self.seq = 0;
+        let r = header(&mut self.w, imu_hz, earth_field_ut, sign_ambiguous, Some(0));
+        self.count(r)
+    }
+
+    /// An IMU sample (see [`write_imu`]).
+    pub fn imu(
+        &mut self,
+        t: f64,
+        acc: &Vec3,
+        gyr: &Vec3,
+        mag: Option<&Vec3>,
+    ) -> Result<(), LogError> {
+        let r = imu(&mut self.w, t, acc, gyr, mag, Some(self.seq));
+        self.count(r)
+    }
+
+    /// A pulse (see [`write_pulse`]).
+    pub fn pulse(&mut self, t: f64, h: &Vec3, src: Option<u8>) -> Result<(), LogError> {
+        let r = pulse(&mut self.w, t, h, src, Some(self.seq));
+        self.count(r)
+    }
+
+    /// An event (see [`write_event_with`]).
+    pub fn event(
+        &mut self,
+        t: f64,
+        kind: &str,
+        why: Option<&str>,
+        details: &[(&str, Detail<'_>)],
+    ) -> Result<(), LogError> {
+        let r = event(&mut self.w, t, kind, why, details, Some(self.seq));
+        self.count(r)
+    }
+
+    /// The counts so far.
+    pub fn stats(&self) -> RecorderStats {
+        self.stats
+    }
+
+    /// The writer (to flush it, check its health or swap its medium).
+    pub fn writer(&mut self) -> &mut W {
+        &mut self.w
+    }
+
+    /// Gives the writer back.
+    pub fn into_writer(self) -> W {
+        self.w
+    }
+}
+
+/// Writes to two writers (the SD card and the UART stream); fails when either fails, after
+/// giving the text to both, so a failing one does not starve the other.
+#[derive(Debug)]
+pub struct Tee<A, B> {
+    /// The first writer.
+    pub a: A,
+    /// The second writer (`None`: not used).
+    pub b: Option<B>,
+}
+
+impl<A: Write, B: Write> Write for Tee<A, B> {
+    fn write_str(&mut self, s: &str) -> core::fmt::Result {
+        let ra = self.a.write_str(s);
+        let rb = self.b.as_mut().map_or(Ok(()), |b| b.write_str(s));
+        ra.and(rb)
+    }
 }
 
 #[cfg(test)]
@@ -216,5 +437,119 @@ mod tests {
             Err(LogError::NonFinite)
         );
         assert!(s.is_empty());
+    }
+
+    /// A writer that fails from its `n`-th write on.
+    struct FailAfter {
+        out: String,
+        left: usize,
+    }
+
+    impl Write for FailAfter {
+        fn write_str(&mut self, s: &str) -> core::fmt::Result {
+            if self.left == 0 {
+                return Err(core::fmt::Error);
+            }
+            self.left -= 1;
+            self.out.push_str(s);
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn recorder_numbers_records_and_counts_failures() {
+        let mut r = Recorder::new(String::new());
+        r.header(100.0, &Vec3::new(21.0, 0.0, -42.0), true).unwrap();
+        r.imu(0.01, &Vec3::zeros(), &Vec3::zeros(), None).unwrap();
+        assert_eq!(
+            r.pulse(0.5, &Vec3::new(f32::NAN, 0.0, 0.0), None),
+            Err(LogError::NonFinite)
+        );
+        r.event(
+            0.6,
+            "read_error",
+            Some("imu"),
+            &[("count", Detail::Int(3)), ("ok", Detail::Flag(false))],
+        )
+        .unwrap();
+        assert_eq!(
+            r.event(0.7, "gain", None, &[("seq", Detail::Int(1))]),
+            Err(LogError::Invalid)
+        );
+        assert_eq!(
+            r.event(0.7, "gain", None, &[("db", Detail::Num(f32::INFINITY))]),
+            Err(LogError::NonFinite)
+        );
+        r.event(
+            0.8,
+            "gain",
+            None,
+            &[("range", Detail::Text("low")), ("db", Detail::Num(-6.5))],
+        )
+        .unwrap();
+        assert_eq!(
+            r.stats(),
+            RecorderStats {
+                written: 4,
+                refused: 3,
+                failed: 0
+            }
+        );
+        let text = r.into_writer();
+        let lines: std::vec::Vec<&str> = text.lines().collect();
+        assert_eq!(lines.len(), 4);
+        assert!(lines[0].ends_with(r#","sign_ambiguous":true,"seq":0}"#));
+        assert_eq!(
+            lines[1],
+            r#"{"type":"imu","t":0.01,"acc":[0,0,0],"gyr":[0,0,0],"seq":1}"#
+        );
+        assert_eq!(
+            lines[2],
+            r#"{"type":"event","t":0.6,"kind":"read_error","why":"imu","count":3,"ok":false,"seq":2}"#
+        );
+        assert_eq!(
+            lines[3],
+            r#"{"type":"event","t":0.8,"kind":"gain","range":"low","db":-6.5,"seq":3}"#
+        );
+
+        // A failing writer: the record is counted as failed and its number is used up, so
+        // the next record read shows the gap.
+        let mut r = Recorder::new(FailAfter {
+            out: String::new(),
+            left: 1000,
+        });
+        r.header(100.0, &Vec3::new(21.0, 0.0, -42.0), true).unwrap();
+        r.writer().left = 0;
+        assert_eq!(
+            r.imu(0.01, &Vec3::zeros(), &Vec3::zeros(), None),
+            Err(LogError::Write)
+        );
+        assert_eq!(r.stats().failed, 1);
+        r.writer().left = 100;
+        r.event(0.02, "mark", None, &[]).unwrap();
+        assert!(r.into_writer().out.ends_with(
+            r#""kind":"mark","seq":2}
+"#
+        ));
+    }
+
+    #[test]
+    fn tee_writes_both_and_reports_either_failure() {
+        let mut t = Tee {
+            a: String::new(),
+            b: Some(FailAfter {
+                out: String::new(),
+                left: 1,
+            }),
+        };
+        t.write_str("ab").unwrap();
+        assert!(t.write_str("cd").is_err());
+        assert_eq!(t.a, "abcd");
+        let mut t: Tee<String, String> = Tee {
+            a: String::new(),
+            b: None,
+        };
+        t.write_str("x").unwrap();
+        assert_eq!(t.a, "x");
     }
 }

@@ -21,14 +21,9 @@
 //! The receiver application (≈ 88 KB with this bank) lives in SRAM on the board; the ADC
 //! sample queue (32 KB) and the front end live in the 64 KB CCM instead, which leaves
 //! ≥ 36 KB of SRAM for the stack (high-water ≈ 25 KB, `hal-sim/reports/reliability.md`).
-//! 56 components per victim (all four in CCM) was tried first: a single victim's rescue
-//! lost accuracy (probe error median 0.088 → 0.097 m, max 0.71 → 0.87 m) and a 20 s
-//! transmitter silence mid-search broke the estimate (3.2 m final error, fault test
-//! `transmitter_off_shows_no_signal_keeps_the_estimate_and_recovers`), which 80 holds.
-//! Issue 9's second round added 8 B per slot (the steps and standing flag of each
-//! victim's pending interval, for its floors) and 4 B per bank (last overlap time):
-//! 36 B in all; the re-association check runs on the stack with one copy of the motion
-//! pipeline and no copy of a filter (`SogFilter::explains` is read-only).
+//! Why 80 per victim (not 56, not one shared pool): `docs/decisions/component-pool.md`.
+//! The re-association check runs on the stack with one copy of the motion pipeline and
+//! no copy of a filter (`SogFilter::explains` is read-only).
 //!
 //! # Track identity and the list's capacity
 //! A front end may give one transmitter several track ids (after a long overlap or

@@ -21,7 +21,7 @@ use serde::Serialize;
 use std::time::Instant;
 
 /// The evaluated cases.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum Case {
     /// Known trajectory (ICRA 2006): exact displacements and attitude, low pulse noise.
@@ -961,9 +961,11 @@ pub fn run_imu(seed: u64) -> RunResult {
 
 /// Runs `tries` seeded runs of `case` in parallel (seeds `first_seed..`).
 pub fn run_case(case: Case, first_seed: u64, tries: u64, noise: &MotionNoise) -> Vec<RunResult> {
+    use indicatif::ParallelProgressIterator as _;
     use rayon::prelude::*;
     (first_seed..first_seed + tries)
         .into_par_iter()
+        .progress_with(crate::progress::bar(tries, &format!("{case:?} runs")))
         .map(|seed| match case {
             Case::ClosedLoop => run_closed_loop(seed, noise),
             Case::Imu => run_imu(seed),
@@ -1305,13 +1307,11 @@ pub fn case_report(case: Case, runs: &[RunResult]) -> String {
         .filter(|r| r.final_error_m.is_none_or(|e| e > 1.0))
         .count();
     let reinit: usize = runs.iter().map(|r| r.reinitializations).sum();
-    let host = stats(runs.iter().map(|r| Some(r.host_us_per_step)));
     let comps = stats(runs.iter().map(|r| Some(r.max_components as f64)));
     let _ = writeln!(
         s,
-        "\nTruth inside the reported 3σ ellipsoid on {:.1} % of {evaluated} steps; final error > 1 m (or never initialized) in {over_1m} of {n} runs; {reinit} re-initializations; host time per step max/mean/median {} µs; components max/mean/median {}.",
+        "\nTruth inside the reported 3σ ellipsoid on {:.1} % of {evaluated} steps; final error > 1 m (or never initialized) in {over_1m} of {n} runs; {reinit} re-initializations; components max/mean/median {} (step cost on the target: `budget.md`).",
         100.0 * inside as f64 / evaluated.max(1) as f64,
-        fmt3(host),
         fmt3(comps),
     );
     let _ = writeln!(s, "{}", consistency_line(runs));
@@ -1379,7 +1379,80 @@ pub fn consistency_line(runs: &[RunResult]) -> String {
     )
 }
 
-/// Runs the cases and writes the report.
+/// One case's headline: final 3-D error median and max, share inside 3σ, and the bound's
+/// median where the case computes it.
+#[derive(Debug, Clone, Copy)]
+struct SummaryRow {
+    median_m: f64,
+    max_m: f64,
+    inside_3sigma_pct: f64,
+    bound_median_m: Option<f64>,
+}
+
+fn summary_row(runs: &[RunResult]) -> Option<SummaryRow> {
+    let [max_m, _, median_m] = stats(runs.iter().map(|r| r.final_error_m))?;
+    let evaluated: usize = runs.iter().map(|r| r.evaluated_steps).sum();
+    let inside: usize = runs.iter().map(|r| r.inside_3sigma).sum();
+    Some(SummaryRow {
+        median_m,
+        max_m,
+        inside_3sigma_pct: 100.0 * inside as f64 / evaluated.max(1) as f64,
+        bound_median_m: bound_stats(runs, false, false).map(|b| b[2]),
+    })
+}
+
+/// The report's opening summary, generated from this run's cases.
+fn summary_section(rows: &[(Case, Option<SummaryRow>)]) -> String {
+    use std::fmt::Write as _;
+    let mut s = String::from(
+        "**Summary** (final 3-D error median / max; share of steps with the truth inside the \
+         reported 3σ; the Cramér–Rao bound's median where computed):\n\n",
+    );
+    for (case, row) in rows {
+        let Some(r) = row else {
+            let _ = writeln!(s, "- {case:?}: no run initialized.");
+            continue;
+        };
+        let bound = r
+            .bound_median_m
+            .map_or(String::new(), |b| format!(", bound {b:.3} m"));
+        let _ = writeln!(
+            s,
+            "- {case:?}: {:.3} / {:.3} m, {:.1} % inside 3σ{bound}.",
+            r.median_m, r.max_m, r.inside_3sigma_pct
+        );
+    }
+    let median = |c: Case| {
+        rows.iter()
+            .find(|(k, _)| *k == c)
+            .and_then(|(_, r)| r.map(|r| r.median_m))
+    };
+    if let (Some(imu), Some(exact)) = (median(Case::Imu), median(Case::Calibrated)) {
+        let _ = writeln!(
+            s,
+            "\nThe application pipeline (`Imu`: the firmware's attitude filter and PDR on the \
+             simulated IMU) ends {:+.0} % from the calibrated case's synthetic motion in the \
+             median (issue target: within 10 %).",
+            100.0 * (imu / exact - 1.0)
+        );
+    }
+    s.push('\n');
+    s
+}
+
+/// How to read the budget table (written under it).
+const BUDGET_NOTE: &str = "Every row is the calibrated case on the same scenarios with the \
+same noise draws, only their amplitudes changed (`budget` in `hal-sim/src/accuracy.rs`); a \
+\"removed\" source is kept at 10 % of its σ (1 % of its variance) so every declared covariance \
+stays positive definite. \"bound\" columns: the Cramér–Rao bound of each run \
+(`hal-sim/src/accuracy_bound.rs`) as the error of an efficient unbiased estimator (p99 of 100 \
+pooled draws per run standing for the largest run); `eᵀC⁻¹e`: the filter's final error \
+normalized by its run's bound (mean 3 for an efficient estimator, larger when information \
+is lost). \"mean NEES\" is the filter's own consistency against its reported covariance. \
+What the budget has shown, and the estimator's gates and their measurements: \
+`docs/decisions/estimator.md`.\n";
+
+/// Runs the selected cases and writes the report.
 pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
     use std::io::Write as _;
     let cases: Vec<Case> = if args.cases.is_empty() {
@@ -1411,12 +1484,17 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
     if args.budget {
         flags.push_str(" --budget");
     }
+    let command = format!(
+        "cargo run -p hal-sim --release -- accuracy --tries {}{flags}",
+        args.tries
+    );
     let mut report = format!(
-        "## SOGs accuracy (`cargo run -p hal-sim --release -- accuracy --tries {}{flags}`)\n\nMotion noise fed to the filter in every case but `Imu` (true displacement plus errors, to isolate the estimator; `Imu` runs the firmware's own attitude filter and PDR on the simulated IMU): {}\n\n",
-        args.tries,
+        "## SOGs accuracy (`{command}`)\n\nMotion noise fed to the filter in every case but `Imu` (true displacement plus errors, to isolate the estimator; `Imu` runs the firmware's own attitude filter and PDR on the simulated IMU): {}\n\n",
         serde_json::to_string(&noise)?
     );
+    let header_len = report.len();
     let mut all_runs = Vec::new();
+    let mut summary = Vec::new();
     for case in cases {
         let start = Instant::now();
         eprintln!("accuracy: {case:?}, {} tries …", args.tries);
@@ -1426,6 +1504,7 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
             start.elapsed().as_secs_f64()
         );
         report.push_str(&case_report(case, &runs));
+        summary.push((case, summary_row(&runs)));
         all_runs.extend(runs.into_iter().map(|r| (case, r)));
     }
     if args.budget {
@@ -1436,9 +1515,10 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
             start.elapsed().as_secs_f64()
         );
         report.push_str(&format!(
-            "### Error budget of the calibrated case (final 3-D error, m)\n\n{table}\n"
+            "### Error budget of the calibrated case (final 3-D error, m)\n\n{table}\n{BUDGET_NOTE}"
         ));
     }
+    report.insert_str(header_len, &summary_section(&summary));
     if let Some(path) = &args.runs {
         let mut f = std::io::BufWriter::new(std::fs::File::create(path)?);
         for (case, r) in &all_runs {
@@ -1446,10 +1526,63 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
         }
     }
     if let Some(path) = &args.out {
-        std::fs::write(path, &report)?;
+        let side = sidecar(&command, args, &summary, &all_runs)?;
+        crate::sidecar::write(path, &report, side)?;
     }
     out.write_all(report.as_bytes())?;
     Ok(())
+}
+
+/// Keys of a run record that depend on the machine, not on the code.
+const VOLATILE: &[&str] = &["host_us_per_step"];
+
+/// The report's sidecar: per-case headline numbers and the first seed's run of each case.
+fn sidecar(
+    command: &str,
+    args: &Args,
+    summary: &[(Case, Option<SummaryRow>)],
+    runs: &[(Case, RunResult)],
+) -> anyhow::Result<crate::sidecar::Sidecar> {
+    let mut headline = serde_json::Map::new();
+    for (case, row) in summary {
+        let value = row.map_or(serde_json::Value::Null, |r| {
+            serde_json::json!({
+                "final_error_m_median": r.median_m,
+                "final_error_m_max": r.max_m,
+                "inside_3sigma_pct": r.inside_3sigma_pct,
+                "bound_median_m": r.bound_median_m,
+            })
+        });
+        headline.insert(format!("{case:?}"), value);
+    }
+    let check = runs
+        .iter()
+        .filter(|(_, r)| r.seed == args.first_seed)
+        .map(|(case, r)| {
+            Ok(serde_json::json!({"case": case, "run": crate::sidecar::record(r, VOLATILE)?}))
+        })
+        .collect::<anyhow::Result<_>>()?;
+    Ok(crate::sidecar::Sidecar {
+        report: "accuracy".into(),
+        command: command.into(),
+        first_seed: args.first_seed,
+        tries: args.tries,
+        markdown_fnv64: String::new(),
+        summary: serde_json::Value::Object(headline),
+        check,
+    })
+}
+
+/// Re-runs one sidecar record (its case and seed) with the current code and default noise.
+pub fn rerun(record: &serde_json::Value) -> anyhow::Result<serde_json::Value> {
+    let case: Case = serde_json::from_value(record["case"].clone())?;
+    let seed = record["run"]["seed"]
+        .as_u64()
+        .ok_or_else(|| anyhow::anyhow!("record without a seed"))?;
+    let run = run_case(case, seed, 1, &MotionNoise::default())
+        .pop()
+        .ok_or_else(|| anyhow::anyhow!("no run"))?;
+    Ok(serde_json::json!({"case": case, "run": crate::sidecar::record(&run, VOLATILE)?}))
 }
 
 #[cfg(test)]

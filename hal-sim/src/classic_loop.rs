@@ -191,7 +191,7 @@ pub fn run(seed: u64) -> anyhow::Result<ClassicOutcome> {
         }
         let yaw = motion.attitude().0.z;
         seen.push_back(Seen {
-            display: classic.display(p1.t as f32, yaw),
+            display: classic.display(p1.t as f32, yaw).into(),
             out: *classic.output(),
             psi: person.psi,
         });
@@ -400,14 +400,19 @@ const PROTOCOL: &str = "Same seeded scenarios and rescuer as `rescue-report` (IC
 /// `hal-sim classic-report`: the classic mode beside the idealized DS and the SOG.
 pub fn report(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
     use crate::rescue_report::{Case, Rescue, run_case};
+    use indicatif::ParallelProgressIterator as _;
     use rayon::prelude::*;
     let t0 = std::time::Instant::now();
     eprintln!("classic-report: classic mode, {} tries …", args.tries);
     let classic: Vec<ClassicOutcome> = (1..=args.tries)
         .into_par_iter()
+        .progress_with(crate::progress::bar(args.tries, "classic rescues"))
         .map(run)
         .collect::<anyhow::Result<_>>()?;
-    let classic_s = t0.elapsed().as_secs_f64();
+    eprintln!(
+        "classic-report: classic mode done in {:.1} s",
+        t0.elapsed().as_secs_f64()
+    );
     if let Some(p) = &args.runs {
         let mut lines = String::new();
         for o in &classic {
@@ -446,10 +451,11 @@ pub fn report(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> 
         ("DS (idealized)", &of(&ds)),
         ("SOG", &of(&sog)),
     ];
-    let mut r = format!(
-        "## Classic mode in the loop (`cargo run -p hal-sim --release -- classic-report --tries {} --out hal-sim/reports/classic.md`)\n\n{PROTOCOL}\n\n",
+    let command = format!(
+        "cargo run -p hal-sim --release -- classic-report --tries {} --out hal-sim/reports/classic.md",
         args.tries
     );
+    let mut r = format!("## Classic mode in the loop (`{command}`)\n\n{PROTOCOL}\n\n");
     r += "| metric (max / mean / median) |";
     for (name, _) in &cols {
         r += &format!(" {name} |");
@@ -515,7 +521,7 @@ pub fn report(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> 
         cell(&fine_steps, 0)
     );
     r += &format!(
-        " Turn-arounds shown {:.2} per run; {} runs went back to a passed peak; {} reached the fine search. Host time {:.1} s for {} runs (parallel).\n",
+        " Turn-arounds shown {:.2} per run; {} runs went back to a passed peak; {} reached the fine search.\n",
         classic
             .iter()
             .map(|o| f64::from(o.turn_arounds))
@@ -523,8 +529,6 @@ pub fn report(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> 
             / n,
         count(|o| o.returned),
         count(|o| o.fine),
-        classic_s,
-        classic.len(),
     );
     let med = |m: &Metrics, f: fn(&Metrics) -> &Column| mmm(f(m)).map_or(f64::NAN, |v| v[2]);
     let (c, d, g) = (cols[0].1, cols[1].1, cols[2].1);
@@ -562,9 +566,51 @@ pub fn report(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> 
     r += ".\n";
     write!(out, "{r}")?;
     if let Some(p) = &args.out {
-        std::fs::write(p, &r)?;
+        crate::sidecar::write(p, &r, sidecar(&command, args, &classic)?)?;
     }
     Ok(())
+}
+
+/// The report's sidecar: the classic mode's headline numbers and its first seeds' runs.
+fn sidecar(
+    command: &str,
+    args: &Args,
+    classic: &[ClassicOutcome],
+) -> anyhow::Result<crate::sidecar::Sidecar> {
+    use crate::accuracy::stats;
+    let ratio = stats(
+        classic
+            .iter()
+            .map(|o| o.steps.zip(o.ideal_steps).map(|(a, b)| a / b.max(1e-9))),
+    );
+    let summary = serde_json::json!({
+        "runs": classic.len(),
+        "failed": classic.iter().filter(|o| o.failed).count(),
+        "error_h_m_max_mean_median": stats(classic.iter().map(|o| o.error_h_m)),
+        "steps_over_ideal_max_mean_median": ratio,
+    });
+    let check = classic
+        .iter()
+        .filter(|o| o.seed <= crate::sidecar::CHECK_SEEDS)
+        .map(|o| crate::sidecar::record(o, &[]))
+        .collect::<anyhow::Result<_>>()?;
+    Ok(crate::sidecar::Sidecar {
+        report: "classic-report".into(),
+        command: command.into(),
+        first_seed: 1,
+        tries: args.tries,
+        markdown_fnv64: String::new(),
+        summary,
+        check,
+    })
+}
+
+/// Re-runs one sidecar record (its seed) with the current code.
+pub fn rerun(record: &serde_json::Value) -> anyhow::Result<serde_json::Value> {
+    let seed = record["seed"]
+        .as_u64()
+        .ok_or_else(|| anyhow::anyhow!("record without a seed"))?;
+    crate::sidecar::record(&run(seed)?, &[])
 }
 
 #[cfg(test)]

@@ -1,4 +1,4 @@
-//! Multiple burials (issue 9): seeded closed-loop rescues of 2–4 victims with marking,
+//! Multiple burials: seeded closed-loop rescues of 2–4 victims with marking,
 //! and `hal-sim multi-report`.
 //!
 //! The rescuer model, IMU synthesis and pulse noise are those of [`crate::closed_loop`]
@@ -10,7 +10,7 @@
 //!   `firmware::frontend`, step 6): the pulses are withheld
 //!   ([`firmware::app::Receiver::on_withheld`]) and reported to the transmitter tracker as
 //!   an occlusion — except one whose strongest interferer is ≤ 1 % of its amplitude
-//!   ([`firmware::frontend::overlap_verdict`], issue 9): it is kept, with the
+//!   ([`firmware::frontend::overlap_verdict`]): it is kept, with the
 //!   interferer's field × covered share × cos(random relative carrier phase) added to its
 //!   vector (its in-phase projection after integration at the dominant carrier). Layouts with overlap give two transmitters periods 2–6 ms apart, so
 //!   their pulses overlap for 30–100 pulses in a row.
@@ -60,7 +60,7 @@ const OFFSET_NOISE_HZ: f64 = 2.0;
 const TIMING_NOISE_S: f64 = 0.001;
 
 /// How the victims are laid out.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, serde::Deserialize, clap::ValueEnum)]
 pub enum Layout {
     /// Victims 8–25 m from the first one, periods drawn freely.
     Spread,
@@ -720,14 +720,13 @@ pub fn victims_for(seed: u64) -> usize {
 
 /// Runs every layout and writes the report.
 pub fn report(args: &Args, out: &mut dyn std::io::Write) -> anyhow::Result<()> {
+    use indicatif::ParallelProgressIterator as _;
     use rayon::prelude::*;
     if let Some(spec) = &args.trace {
         return trace(spec);
     }
-    let mut md = String::new();
-    let _ = writeln!(
-        md,
-        "## Multiple burials (`cargo run -p hal-sim --release -- multi-report --tries {}{}`)\n",
+    let command = format!(
+        "cargo run -p hal-sim --release -- multi-report --tries {}{}",
         args.tries,
         if args.first_seed == 1 {
             String::new()
@@ -735,12 +734,18 @@ pub fn report(args: &Args, out: &mut dyn std::io::Write) -> anyhow::Result<()> {
             format!(" --first-seed {}", args.first_seed)
         }
     );
+    let mut md = String::new();
+    let _ = writeln!(md, "## Multiple burials (`{command}`)\n");
     md.push_str(PROTOCOL);
     let mut all: Vec<MultiOutcome> = Vec::new();
     for layout in Layout::ALL {
         let seeds = args.first_seed..args.first_seed.saturating_add(args.tries);
         let runs: Vec<MultiOutcome> = seeds
             .into_par_iter()
+            .progress_with(crate::progress::bar(
+                args.tries,
+                &format!("{layout:?} rescues"),
+            ))
             .map(|seed| run(&MultiConfig::new(seed, victims_for(seed), layout)))
             .collect::<anyhow::Result<_>>()?;
         md.push_str(&layout_report(layout, &runs));
@@ -748,7 +753,7 @@ pub fn report(args: &Args, out: &mut dyn std::io::Write) -> anyhow::Result<()> {
     }
     md.push_str(&summary(&all));
     md.push_str(&single_victim_check(args.single_tries)?);
-    md.push_str(CAPACITY);
+    md.push_str(&capacity());
     if let Some(p) = &args.runs {
         let mut s = String::new();
         for o in &all {
@@ -758,10 +763,67 @@ pub fn report(args: &Args, out: &mut dyn std::io::Write) -> anyhow::Result<()> {
         std::fs::write(p, s)?;
     }
     if let Some(p) = &args.out {
-        std::fs::write(p, &md)?;
+        crate::sidecar::write(p, &md, sidecar(&command, args, &all)?)?;
     }
     out.write_all(md.as_bytes())?;
     Ok(())
+}
+
+/// The report's sidecar: per-layout headline numbers and the first seeds' rescues.
+fn sidecar(
+    command: &str,
+    args: &Args,
+    all: &[MultiOutcome],
+) -> anyhow::Result<crate::sidecar::Sidecar> {
+    let mut headline = serde_json::Map::new();
+    for layout in Layout::ALL {
+        let runs: Vec<&MultiOutcome> = all.iter().filter(|r| r.layout == layout).collect();
+        let victims: usize = runs.iter().map(|r| r.victims.len()).sum();
+        let found: usize = runs
+            .iter()
+            .map(|r| r.victims.iter().filter(|v| v.found).count())
+            .sum();
+        let errors = runs
+            .iter()
+            .flat_map(|r| r.victims.iter().map(|v| v.error_h_m));
+        headline.insert(
+            format!("{layout:?}"),
+            serde_json::json!({
+                "rescues": runs.len(),
+                "victims": victims,
+                "found": found,
+                "wrong_victim_marks": runs.iter().map(|r| r.wrong_marks()).sum::<usize>(),
+                "reinitializations": runs.iter().map(|r| r.reinitializations).sum::<u32>(),
+                "error_h_m_max_mean_median": stats(errors),
+            }),
+        );
+    }
+    let check = all
+        .iter()
+        .filter(|r| {
+            r.seed < args.first_seed + crate::sidecar::CHECK_SEEDS && r.layout == Layout::ALL[0]
+        })
+        .map(|r| crate::sidecar::record(r, &[]))
+        .collect::<anyhow::Result<_>>()?;
+    Ok(crate::sidecar::Sidecar {
+        report: "multi-report".into(),
+        command: command.into(),
+        first_seed: args.first_seed,
+        tries: args.tries,
+        markdown_fnv64: String::new(),
+        summary: serde_json::Value::Object(headline),
+        check,
+    })
+}
+
+/// Re-runs one sidecar record (its seed and layout) with the current code.
+pub fn rerun(record: &serde_json::Value) -> anyhow::Result<serde_json::Value> {
+    let layout: Layout = serde_json::from_value(record["layout"].clone())?;
+    let seed = record["seed"]
+        .as_u64()
+        .ok_or_else(|| anyhow::anyhow!("record without a seed"))?;
+    let o = run(&MultiConfig::new(seed, victims_for(seed), layout))?;
+    crate::sidecar::record(&o, &[])
 }
 
 /// Runs one rescue (`SEED,LAYOUT`) with the trace on.
@@ -838,10 +900,7 @@ fn single_victim_check(tries: u64) -> anyhow::Result<String> {
          `rescue-report`'s calibrated case (same seeds 1..={tries}) run by this build, \
          where one victim gets one slot of the bank: {probed}/{tries} reached \"probe \
          here\"; probe-point error max / mean / median {} m; steps / ideal from the first \
-         received pulse {}. For comparison, the single 240-component filter of the application \
-         before multiple victims (the `rescue.md` of that build, with the guidance of that \
-         time): 100/100, error 0.707 / 0.131 / 0.088 m, steps / ideal 5.167 / 1.743 / \
-         1.635.\n",
+         received pulse {}.\n",
         firmware::victims::VICTIM_CAPACITY,
         fmt(err, 3).replace(" | ", " / "),
         fmt(ratio, 3).replace(" | ", " / "),
@@ -849,15 +908,21 @@ fn single_victim_check(tries: u64) -> anyhow::Result<String> {
     Ok(s)
 }
 
-const CAPACITY: &str = "### Memory budget and the capacity per victim\n\n\
-4 victim slots (`MAX_VICTIMS`; the tracker's 8 tracks take 8 × 28 B) × 80 components × \
-264 B = 84 480 B of mixture state; the receiver application (≈ 88 KB, \
-`size_of::<Receiver>()` asserted ≤ 92 KB by `app::tests`) lives in SRAM, the ADC queue \
-and the front end in the 64 KB CCM (see `firmware/src/victims.rs`); this round added \
-36 B (each victim's interval steps and standing flag, the last overlap time). Board \
-binary's largest stack frame 17 536 B (limit 24 576 B, `.ci/test`). 56 components per \
-victim (all in CCM) lost single-victim accuracy (probe error median 0.088 → 0.097 m) \
-and broke a 20 s transmitter silence mid-search, which 80 holds.\n";
+/// The memory budget of the victim bank, from the types this build compiles.
+fn capacity() -> String {
+    use firmware::victims::{MAX_VICTIMS, VICTIM_CAPACITY, VictimSog};
+    let filter = core::mem::size_of::<VictimSog>();
+    format!(
+        "### Memory budget and the capacity per victim\n\n\
+         {MAX_VICTIMS} victim slots (`MAX_VICTIMS`) × one {VICTIM_CAPACITY}-component filter \
+         of {filter} B (`VictimSog`) = {} B of mixture state; the receiver application is \
+         {} B (`size_of::<Receiver>()`, bounded by `app::tests`), in SRAM; the ADC queue and \
+         the front end sit in the 64 KB CCM (`firmware/src/bin/receiver.rs`). Why 80 per \
+         victim and not one shared pool: `docs/decisions/component-pool.md`.\n",
+        MAX_VICTIMS * filter,
+        core::mem::size_of::<Receiver>(),
+    )
+}
 
 fn fmt(s: Option<[f64; 3]>, d: usize) -> String {
     match s {
@@ -1042,43 +1107,8 @@ fn summary(all: &[MultiOutcome]) -> String {
          victims found {share:.1} % — **{}**; per-victim median error {median:.3} m — **{}**. \
          With 3–4 victims a third to nearly a half of all pulses are withheld as \
          overlapping (after keeping those ≥ 40 dB above their interferer; each pulse overlaps \
-         another's with probability ≈ Σ on-times / period). History: 79.5 % found in the \
-         first version; 93.5 % after track identity (dormant tracks re-attached by period, \
-         phase and carrier), the motion cut without the step in progress, the target's own \
-         `t_s`; 97.2 % (98.4 / 100 / 94.5 % with 2 / 3 / 4 victims; seeds 101–130: 98.9 %) \
-         after keeping pulses ≥ 40 dB above their interferer. This round (issue 9, third \
-         round), from traces (`multi-report --trace SEED,LAYOUT`): (a) seed 38 (close pair) \
-         had two transmitters of nearly equal period and carrier (1.165 / 1.172 s, +32 / \
-         +31 Hz): ids churned at the start, the 4 slots filled and the target's track moved \
-         to a new id, so the target got no pulse, the display said \"no signal\" from 17 s \
-         and the rescuer walked off; seed 8 (overlapping pair): after the first mark the \
-         new target's pulses were all withheld in its overlap, the guidance (reset at the \
-         change of target) stayed at \"no signal\" and the rescuer walked off; seed 12: one \
-         transmitter under two ids, two list entries; seed 14: victims dropped as lost \
-         after 120 s of silence during a minutes-long overlap of three trains (periods \
-         within 3.6 ms), then \"every listed victim marked\" ended the run. Fixes in the \
-         firmware: a pulse of an unlisted source goes to the victim silent ≥ 1.5 s whose \
-         localized mixture (σ_h ≤ 0.2 × distance) explains it by the filter's own outlier \
-         gate (read-only `SogFilter::explains`); a full list evicts the least useful victim \
-         silent ≥ 10 s (marked first) instead of dropping the new track; an established \
-         victim is not dropped while pulses are being withheld; a target silent for 15 s \
-         gives way to the nearest heard unmarked victim, and a silent target is shown at \
-         its estimate (its list row) meanwhile; the per-interval motion floors (undetected \
-         start/stop or hand sway, vertical bob, translation and rotation floors) come once \
-         per victim interval, not with every cut (`Motion::take_split`, \
-         `PdrNoise::interval_floors`). The simulated rescuer and the end condition are \
-         unchanged. Left: close pairs where the mark's probe point is 1.1–1.5 m off the \
-         second victim (counted wrong, seeds 14, 34, 46), a fine search that never reaches \
-         \"probe here\" with half the target's pulses withheld (seed 17, 600 s over victim \
-         3), and seed 50's overlap layouts (one victim under 3 ids marked twice, the list \
-         full: 438 pulses dropped); with these fixes alone re-initializations rose (≈ 50 \
-         → ≈ 95 over 200 rescues) with the smaller per-victim Q_k. Merged with the same \
-         session's iterated EKF update (issue 4) and probe rule (issue 6) — the build of \
-         this report — they fell to 24, the found share rose from 98.7 % to 99.7 % and the \
-         median time to find all 4 victims from 226 s to 176 s. Unseen seeds with this \
-         build (`multi-report --tries 30 --first-seed 101`): 359 / 360 found (99.7 %; 100 \
-         / 100 / 99.4 % with 2 / 3 / 4 victims), wrong-victim marks 4, re-initializations \
-         21.\n",
+         another's with probability ≈ Σ on-times / period). `multi-report --trace \
+         SEED,LAYOUT` prints one rescue pulse by pulse.\n",
         if share >= 98.0 { "met" } else { "missed" },
         if median <= 0.15 { "met" } else { "missed" },
     );

@@ -32,7 +32,7 @@ pub struct Args {
     /// Write every rescue's summary as JSON Lines here.
     #[arg(long = "jsonl", alias = "runs", value_name = "PATH")]
     pub runs: Option<std::path::PathBuf>,
-    /// Leave out the fine-search lift (issue 6): only the SOG cases without it and DS
+    /// Leave out the fine-search lift and lowering: only the SOG cases without it and DS
     /// (the report before the lift existed).
     #[arg(long)]
     pub no_lift: bool,
@@ -56,7 +56,9 @@ pub struct Args {
 }
 
 /// The compared searches.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, clap::ValueEnum)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize, clap::ValueEnum,
+)]
 pub enum Case {
     /// The receiver (SOGs + search control), calibrated step length.
     SogCalibrated,
@@ -67,7 +69,7 @@ pub enum Case {
     /// As [`Case::SogUncalibrated`], the receiver never asking for a lift.
     SogUncalibratedNoLift,
     /// As [`Case::SogCalibrated`], the receiver never asking to be lowered to the snow
-    /// (the whole fine search 1 m above the snow, as before issue 6's lowering).
+    /// (the whole fine search 1 m above the snow).
     SogCalibratedHigh,
     /// As [`Case::SogUncalibrated`], the receiver never asking to be lowered.
     SogUncalibratedHigh,
@@ -460,15 +462,17 @@ fn run_case_with(
     tries: u64,
     probe_radius_m: Option<f64>,
 ) -> anyhow::Result<Vec<Rescue>> {
+    use indicatif::ParallelProgressIterator as _;
     use rayon::prelude::*;
     (first..first + tries)
         .into_par_iter()
+        .progress_with(crate::progress::bar(tries, &format!("{case:?} rescues")))
         .map(|seed| run_one_with(case, seed, probe_radius_m))
         .collect()
 }
 
 /// The calibrated case with each probe radius of `radii`: steps against probe-point
-/// error, the two sides of issue 6's targets.
+/// error, the two sides of the fine-search targets.
 fn probe_tradeoff(args: &Args, radii: &[f64]) -> anyhow::Result<String> {
     let mut s = format!(
         "### Steps against probe-point error: the probe radius (calibrated)\n\n\
@@ -879,7 +883,7 @@ type Metric = fn(&Rescue) -> Option<f64>;
 /// The gain of the lowering to the snow: the default cases against the receiver kept at
 /// the walking height.
 fn lower_gain(all: &[Rescue]) -> String {
-    let head = "### Gain of the lowering to the snow (issue 6)\n\n\
+    let head = "### Gain of the lowering to the snow\n\n\
 Localized within 2 m of the estimate, the receiver shows \"LOWER TO SNOW\" (once, whatever \
 the estimated depth: the filter's initialization prior follows the tracked height): the rescuer stops, pauses 0.5 s and lowers it to 0.2 m above the \
 snow in a 1 s minimum-jerk move, then goes on step by step bent over. The accelerometer \
@@ -950,7 +954,7 @@ fn compare(all: &[Rescue], head: &str, pairs: [(Case, Case); 2], extra: (&str, M
 
 /// The gain of the fine-search lift: probe-point and depth errors with and without it.
 fn lift_gain(all: &[Rescue]) -> String {
-    let head = "### Gain of the fine-search lift (issue 6)\n\n\
+    let head = "### Gain of the fine-search lift\n\n\
 When the horizontal distance to the estimate is below 1 m, the depth σ above 0.2 m and the \
 receiver was not lowered to the snow, the receiver shows \"LIFT\": the rescuer stands and \
 lifts it 0.4 m up and down over 2 s; the accelerometer-integrated vertical excursion (zero \
@@ -1025,16 +1029,16 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
         let radii: Vec<String> = args.probe_tradeoff.iter().map(|r| format!("{r}")).collect();
         format!(" --probe-tradeoff {}", radii.join(","))
     };
-    let mut report = format!(
-        "## Closed-loop rescues (`cargo run -p hal-sim --release -- rescue-report --tries {}{}{tradeoff}`)\n\n{}\n\n",
+    let command = format!(
+        "cargo run -p hal-sim --release -- rescue-report --tries {}{}{tradeoff}",
         args.tries,
         if args.first_seed == 1 {
             String::new()
         } else {
             format!(" --first-seed {}", args.first_seed)
         },
-        PROTOCOL
     );
+    let mut report = format!("## Closed-loop rescues (`{command}`)\n\n{PROTOCOL}\n\n");
     let mut all = Vec::new();
     let cases: &[Case] = if args.calibrated_only {
         &[Case::SogCalibrated]
@@ -1060,7 +1064,7 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
     if !args.no_lift && !args.calibrated_only {
         report.push_str(&lower_gain(&all));
         report.push_str(&lift_gain(&all));
-        report.push_str(FINDINGS);
+        report.push_str(READING);
     }
     if let Some(path) = &args.runs {
         let mut f = std::io::BufWriter::new(std::fs::File::create(path)?);
@@ -1069,309 +1073,91 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
         }
     }
     if let Some(path) = &args.out {
-        std::fs::write(path, &report)?;
+        let side = sidecar(&command, args, cases, &all)?;
+        crate::sidecar::write(path, &report, side)?;
     }
     out.write_all(report.as_bytes())?;
     Ok(())
 }
 
-/// Where the pulses go: what the phase tables and the per-pulse traces
-/// (`rescue-report --trace SEED [--trace-case CASE]`) showed.
-const FINDINGS: &str = "\
-### Where the pulses go
+/// Keys of a [`Rescue`] record that do not come from the code (none today).
+const VOLATILE: &[&str] = &[];
+
+/// The report's sidecar: per-case headline numbers and the first seeds' records (every
+/// seed of [`crate::sidecar::CHECK_SEEDS`] for the first case, the first seed of the others).
+fn sidecar(
+    command: &str,
+    args: &Args,
+    cases: &[Case],
+    all: &[Rescue],
+) -> anyhow::Result<crate::sidecar::Sidecar> {
+    let mut summary = serde_json::Map::new();
+    for &case in cases {
+        let runs: Vec<&Rescue> = all.iter().filter(|r| r.case == case).collect();
+        let ratio = stats(
+            runs.iter()
+                .map(|r| r.steps.zip(r.ideal_steps).map(|(a, b)| a / b.max(1e-9))),
+        );
+        summary.insert(
+            serde_json::to_value(case)?
+                .as_str()
+                .unwrap_or("case")
+                .to_owned(),
+            serde_json::json!({
+                "runs": runs.len(),
+                "probe_here": runs.iter().filter(|r| r.steps.is_some()).count(),
+                "failed": runs.iter().filter(|r| r.failed).count(),
+                "error_h_m_max_mean_median": stats(runs.iter().map(|r| r.error_h_m)),
+                "steps_over_ideal_max_mean_median": ratio,
+            }),
+        );
+    }
+    let first_case = cases.first().copied();
+    let check = all
+        .iter()
+        .filter(|r| {
+            let seeds = if Some(r.case) == first_case {
+                crate::sidecar::CHECK_SEEDS
+            } else {
+                1
+            };
+            r.seed < args.first_seed + seeds
+        })
+        .map(|r| crate::sidecar::record(r, VOLATILE))
+        .collect::<anyhow::Result<_>>()?;
+    Ok(crate::sidecar::Sidecar {
+        report: "rescue-report".into(),
+        command: command.into(),
+        first_seed: args.first_seed,
+        tries: args.tries,
+        markdown_fnv64: String::new(),
+        summary: serde_json::Value::Object(summary),
+        check,
+    })
+}
+
+/// Re-runs one sidecar record (its case and seed) with the current code.
+pub fn rerun(record: &serde_json::Value) -> anyhow::Result<serde_json::Value> {
+    let case: Case = serde_json::from_value(record["case"].clone())?;
+    let seed = record["seed"]
+        .as_u64()
+        .ok_or_else(|| anyhow::anyhow!("record without a seed"))?;
+    crate::sidecar::record(&run_one(case, seed)?, VOLATILE)
+}
+
+/// How to read the phase tables and follow one rescue; the constants they justify are
+/// recorded in `docs/decisions/fine-search-guidance.md`.
+const READING: &str = "\
+### Reading the tables
 
 The phase tables split the pulses from the first reception to \"probe here\" by what the \
-display showed; `hal-sim rescue-report --trace SEED [--trace-case sog-uncalibrated]` prints \
-one rescue pulse by pulse, `--first-seed 1000` runs a separate range of scenarios.\n\n\
-- **What the fine search costs, and a silent victim (issue 6, eighth round).** Each phase \
-table now ends with a bound: the median steps / ideal had the fine search (approach within \
-2 m, over the mean, standing for the receiver's height) taken only the pulses of walking its \
-2 m at the ideal pace. Calibrated, seeds 1–100 / 1000–1099 / 2000–2099 / 3000–3099: 1.098 / \
-1.075 / 1.055 / 1.051 from the first received pulse (1.069 / 1.054 / 1.039 / 1.040 from the \
-start), against 1.206 / 1.192 / 1.165 / 1.180 measured. The flux line and the walk to the \
-mean are within the 1.10 target on every range; the whole gap is the fine search, ≈ 5 pulses \
-over its 2 m walk: the step-by-step approach (each stop, the next pulse and the 0.5 s \
-reading lag), the lowering (stop, settle, 1 s move, a pulse with the receiver low) and the \
-two pulses that confirm \"probe here\". That time is what buys the accuracy (the case kept \
-1 m up: median 0.068 against 0.046 m, see the gain of the lowering), and the rescuer's \
-stop-and-go is the human model's, not the receiver's choice. Measured and not kept: the \
-simulated rescuer counting as standing from 2 % of full pace instead of 0.1 % (≈ 0.45 s \
-earlier after each stop; a change of the human model, not of the receiver): 0.5 pulse per \
-rescue (steps / ideal 1.206 → 1.201, 1.192 → 1.183), maxima 0.291 → 0.551 and 0.215 → \
-0.269 m. Also this round (`Receiver::display_model`): a target whose pulses stop is pointed \
-at where its mixture puts it *now* — its estimate carried over the walk since its last pulse, \
-the running dead-reckoning interval included (`Victim::position_after`) — with one victim \
-too, under \"no signal\", when the search control had localized it (before, one victim \
-showed no arrow, and several showed the estimate as of the last pulse of any transmitter). \
-No single-victim rescue of the four ranges loses its signal while localized: every run is \
-unchanged. `multi-report --tries 50`: 603 / 604 victims found as before (seed 50 of the \
-overlapping pair now found; seed 43 of the close pair now misses its third victim: a \
-second, seldom-heard track of a victim already marked stayed the target, now pointed at \
-exactly, until the time limit — tracker id churn, not the pointer), wrong-victim marks 2 → \
-0, per-victim median 0.050 → 0.049 m; on unseen seeds (`--tries 100 --first-seed 101` and \
-`201`) neutral: found 1196 → 1196 of 1204 and 1189 → 1190 of 1196, wrong-victim marks 14 → \
-13 and 8 → 14, medians 0.054 → 0.053 and 0.050 → 0.049 m. Tried and not kept: an unmarked \
-track within 1 m of a marked victim chosen as the next target only after every other one \
-(seed 43's duplicate): found +1 / −1 / −1 on the three ranges, wrong-victim marks 0 / 15 / 4.
-- **A noisy flux line, the bracketing span, the lowering (issue 6, seventh round).** \
-Measured on four ranges of 100 seeds (1, 1000, 2000, 3000; calibrated, \
-`--first-seed N --calibrated-only`). (a) Seed 3025 failed (220 pulses, 170 on the flux \
-line): a near-vertical moment heard from 43 m near its equator, where the field is nearly \
-vertical and its horizontal part below the noise; each pulse's noisy horizontal direction \
-steered the arrow, and the rescuer walked in circles at 42–50 m. A pulse now steers the \
-flux line only when its horizontal field is ≥ 2 σ of one reading \
-(`GuidanceConfig::flux_min_snr`); below, the rescuer keeps the last direction (the 5 m rule \
-still turns back): seed 3025 74 pulses (1.5×), failures 1 → 0 on 3000–3099, steps / ideal \
-mean 1.273 → 1.268, 1.237 → 1.245, 1.253 → 1.236, 1.274 → 1.231 (medians 1.201 → 1.206, \
-1.184 → 1.183, 1.165 → 1.156, 1.179 → 1.179; 2006 155 → 110, 1047 81 → 51 pulses, but \
-3023 93 → 142, 2057 62 → 85 and 1063 60 → 89 — 2.98× the ideal, a near failure: weak pulses \
-coming and going on the equator of a near-horizontal moment at 34 m, where the flux line runs \
-across the way to the victim; what the rescuer meets there depends on the path either way). (b) The bracketing offset grows with the range to the mean, 0.35 × range within \
-0.5–1 m (`GuidanceConfig::bracket_range_ratio`): over a deep victim one step to either side \
-turns the field little. Max probe-point error 0.316 → 0.253, 0.466 → 0.379, 0.528 → 0.518, \
-0.307 → 0.307 m with medians and steps unchanged. (c) Seeds 1012 and 1037 probed 0.38 and \
-0.28 m off with the depth 0.55 and 0.84 m off: the rescuer was finishing the steps under way \
-when \"LOWER TO SNOW\" came, the prompt ran out after its 4 pulses, and the lowering made a \
-second later went unmeasured (the device was no longer in lift mode): the filter took the \
-receiver for 0.8 m higher than it was. The lowering prompt now runs until the rescuer has \
-stood through 4 pulse intervals with it (at most 12 pulses in all): on 1000–1099 max 0.379 \
-→ 0.215 m, no run left with the tracked height > 0.3 m off (a scratch check over the four \
-ranges found only those two before); the other ranges unchanged. With several victims the \
-application now tells the guidance not to ask for the lowering \
-(`GuidanceInput::lower_allowed`) instead of blanking a prompt the guidance still waited on \
-before \"probe here\": with the standing count that wait grew (`multi-report` time to find \
-all, mean 124 → 130 s); without it 124.1 → 119.6 s, median 121.9 → 118.8 s. (d) The pulses \
-counted toward \"probe here\" before a height prompt no longer count after it: seed 71 \
-without calibration probed on the first pulse at the snow, its depth still 0.85 m off from \
-the pulses 1 m up. Depth error at \"probe here\" without calibration, max 0.85 → 0.40 and \
-0.59 → 0.28 m, mean 0.095 → 0.079 and 0.086 → 0.076 m (seeds 1–100 / 1000–1099; calibrated \
-max 0.13 → 0.13 and 0.23 → 0.21 m); horizontal median 0.048 → 0.046 and 0.052 → 0.053 m \
-(uncalibrated 0.055 → 0.052 and 0.053 → 0.054 m); for about one pulse more: steps / ideal \
-median 1.206 → 1.206 and 1.183 → 1.192 (uncalibrated 1.208 → 1.222 and 1.180 → 1.190). \
-Tried and not kept: the flux-line pulses weighted by their horizontal SNR² (the angle's Fisher \
-information, saturated at SNR 5 or 10): steps unchanged; the filter's `init_snr` 10 → 6 \
-with (a): the flux line 22 → 15 pulses, steps / ideal mean −0.01…−0.03 on three ranges and \
-+0.004 on one, medians ±0.01 — too little to re-measure every open-loop report for; 14: \
-slower; the σ plateau's ceiling 0.225 → 0.15 or 0.18 m, and the plateau held on two \
-pulses before \"probe here\": the max on the four ranges moved both ways (0.518 → 0.206 m \
-on 2000–2099 but 0.215 → 0.381 m on 1000–1099), steps +0.01…0.03; a pulse on which the \
-mean jumped by more than the walk plus σ_h not counted toward \"probe here\" (seed 64 \
-probed on such a jump, after a turn's lever-arm noise): steps / ideal median +0.03…0.05, \
-error medians −0.006…0 m, maxima both ways; with 2 σ_h: steps +0.00…0.01, errors and \
-maxima unchanged.\n\
-- **Edge of reception, the depth prior, the scale gate (issue 6, sixth round).** (a) The \
-two failures of seeds 1–100 (19, 80) and the one of 1000–1099 (1078) were weak beacons heard \
-from ≈ 37 m whose pulses came and went: at the edge of reception a falling |H| shows as \
-missing pulses, not as smaller readings, so the 5 m rule never fired, and the rescuer who \
-turned back on \"no signal\" was sent out again on the old flux-line direction when the \
-pulses returned — in and out at 36–38 m for two minutes. A weak signal (smoothed |H| below \
-10 σ_bkg) lost on the flux line now reverses the direction (`GuidanceConfig::edge_h_sigma`, \
-`GuidanceInput::signal_lost`): failures 2 → 0 and 1 → 0 (also 1 → 0 and 1 → 0 without \
-calibration), steps / ideal mean 1.325 → 1.275 and 1.248 → 1.238, max 4.58 → 2.00 and 3.06 → \
-2.01; medians unchanged. (b) The filter's initialization prior now follows the receiver's \
-tracked height (`VictimSog::set_receiver_height`), so the lowering is asked for shallow \
-victims too (the rule that skipped victims shallower than ≈ 1.1 m existed because a mixture \
-rebuilt while lowered put them a metre too deep): shallow victims (< 1.1 m; 22 and 38 runs) \
-probe-point error median 0.046 → 0.037 and 0.060 → 0.037 m, max 0.184 → 0.087 and 0.386 → \
-0.215 m; all calibrated runs median 0.054 → 0.049 and 0.062 → 0.055 m at steps / ideal \
-1.199 → 1.201 and 1.182 → 1.184. With several victims the lowering stays off, now for the \
-time it costs (`multi-report` seeds 1–50, lowering every victim: median time to find all \
-119 → 130 s for a per-victim error of 0.051 → 0.037 m). (c) The scale-prior divergence \
-gate counts only components over 5 m away (`SogConfig::scale_divergence_min_range_m`): \
-seed 2082 (seeds 2000–2099) had its mixture rebuilt 3 m from the victim on a 4.1σ scale \
-while 0.04 m off, and the fresh mixture, seen from one spot, settled 1.9 m off with σ_h \
-0.14 m; max 1.907 → 0.528 m on that range, seeds 1–100 and 1000–1099 unchanged. Tried and \
-not kept: one confirming pulse for the probe instead of two (seeds 1–100, 1000, 2000, \
-3000: steps / ideal −0.015 to −0.021, error median +0.004, +0.000, +0.013, +0.000 m); no \
-bracketing over the mean (error max 0.316 → 0.453 and 0.466 → 0.379 m, medians equal); the \
-lowering asked for within 1.0 or 0.6 m instead of 2 m (±0.5 pulse, error unchanged); the \
-second-order linearization noise of the walking mode (`SogConfig::nonlinear_k` 3 or 6) on \
-the transmitter-off fault (seeds 20–43): more searches ending metres off, not fewer. Still \
-missed: 1.10 × ideal (1.20 / 1.18; from the start 1.167 / 1.154, the paper's SOG 1.170) — \
-per pulse, the fine search's last 3 m cost ≈ 4.7 pulses over the straight walk (the \
-step-by-step moves, the lowering, two confirming pulses) and the flux line ≈ 3 (median; a \
-15-pulse 90th percentile: near the equator of a near-vertical moment the horizontal field \
-points along the moment's tilt, not at the victim); the walk to the mean costs 0.5; the \
-error median on seeds 1000–1099 (0.055 m) and the max (0.316 / 0.466 m, deep victims whose \
-σ levels off at ≈ 0.2 m).\n\
-- **Dead reckoning in the fine search's stop-and-go (issue 6, fifth round).** The table \
-\"Dead-reckoning consistency\" under the calibrated case compares every displacement the \
-firmware hands the filter with the truth. Before this round, on seeds 1–100, the walk was \
-consistent (mean eᵀC⁻¹e 0.84, RMS error 0.108 m) but the fine search was not: intervals with \
-steps +0.084 m forward on average, RMS 0.300 m against a σ of 0.254 m, 1.8 % beyond the χ² \
-99.9 % point; intervals without a step −0.133 m (a standing walker moving backwards), RMS \
-0.221 m, 4.9 % beyond it. Two causes, both in `motion`: (a) a step is counted whole at its \
-acceleration peak, which comes in the middle of the step (the lowest point of the bob; in \
-human gait the heel strike, with the body half-way between the feet), so while walking the \
-count runs half a step ahead of the body; crediting a pulse `f` of a step since the last \
-peak kept that lead, and a walker who stopped after the pulse had it taken back at the next \
-one — harmless in a long walk (the lead is constant), but every 1–2-step walk of the fine \
-search started and ended with it. A pulse now gets `f − ½` while walking, and nothing once \
-the walker has stopped (no peak pending and the vertical acceleration quiet, |a| < 0.25 m/s² \
-for 0.25 s — a gait swings through ±2.5 m/s² every step; the stop then also counts as \
-standing). (b) The heading of a step was the mean yaw since the previous step, so a turn on \
-the spot before a step (the fine search's turn-round) bent it by up to half the turn — 90° \
-sideways for a turn-around; a stand now restarts that mean. After (same seeds): fine-search \
-intervals with steps +0.059 m, RMS 0.127 m, eᵀC⁻¹e 1.09, none beyond the 99.9 % point; without \
-a step −0.036 m, RMS 0.072 m, 1.10, 1.1 % beyond; the walk 0.119 m, 1.06 (seeds 1000–1099 \
-alike). The probe point, seeds 1–100 / 1000–1099, calibrated: max / median 0.664 / 0.062 → \
-**0.302 / 0.053 m** and 0.651 / 0.071 → **0.404 / 0.062 m**, > 0.20 m in 8 → 2 and 16 → 8 \
-runs; without calibration 2.058 / 0.066 → **0.305 / 0.058 m** and 0.526 / 0.076 → **0.293 / \
-0.057 m**, failures 3 → 1 and 2 → 1. Steps / ideal: calibrated 1.233 → 1.253 and 1.231 → \
-1.215 (paired per seed on 1–100: 23 better, 24 worse, median change 0), uncalibrated 1.296 → \
-1.262 and 1.247 → 1.229; calibrated failures 1 → 3 on seeds 1–100: seeds 19 and 28, weak \
-beacons that took 2.86× and 2.79× before (40 and 34 pulses unheard or without signal, then \
-39 and 85 on the flux line) now cross 3×, seed 80 as before. The IMU case of the accuracy \
-report (the firmware's PDR on hal-sim's other walker model, `rescuer.rs`) moved 0.432 / \
-0.162 / 0.142 → 0.340 / 0.150 / 0.150 m (max / mean / median, seeds 1–100), consistency \
-91.3 → 91.7 %. Tried on the way and not kept: crediting nothing for a stopped walker but \
-keeping `f` (probe error max 0.272 / 0.531 m, uncalibrated 0.555 / 1.439 m — the walk's lead \
-left in); lowering the filter's `init_snr` 10 → 7 / 5 (the flux line shrinks from 23 to 14 \
-pulses but the walk to a wide mean grows by as much: steps / ideal 1.233 → 1.239 / 1.260); \
-a turn's lever-arm noise 0.35 → 0.05 m (the simulated rescuer pivots about the receiver; \
-steps / ideal 1.220 / 1.217, no change in the tail); a stricter probe rule (3σ ≤ 0.15 m: \
-steps / ideal 1.52, median error 0.071 m — standing longer over the mean made the estimate \
-worse with the old dead reckoning) and a looser one (3σ ≤ 0.45 m: 1.200 / 1.182, max 0.491 \
-/ 0.453 m — faster for the same reason; not re-measured with the new dead reckoning, so not \
-kept). With the new dead reckoning the probe radius was measured again (table \
-\"Steps against probe-point error\" above, both seed ranges): from 0.15 to 0.6 m the median \
-probe-point error stays within 0.049–0.063 m while steps / ideal go from 1.48 to 1.18 — the \
-error is set by what the fine search has measured when it starts, not by standing longer \
-over the mean, so neither target is bought with the other. The radius is now 0.45 m (was \
-0.3 m; 99 % inside a 0.45 m circle, within a probing spiral's reach; the plateau's ceiling \
-half of it, 0.225 m): seeds 1–100 / 1000–1099, calibrated steps / ideal 1.253 → 1.199 and \
-1.215 → 1.182, probe-point error median 0.053 → 0.054 and 0.062 → 0.062 m, max 0.302 → \
-0.316 and 0.404 → 0.466 m, failures 3 → 2 and 1 → 1; uncalibrated 1.262 → 1.209 and 1.229 → \
-1.179, median 0.058 → 0.055 and 0.057 → 0.057 m, max 0.305 → 0.251 and 0.293 → 0.303 m; \
-`multi-report --tries 50` 603 → 604 of 604 victims found, per-victim median 0.050 → 0.051 m. \
-Still missed: the 0.05 m median (0.054 / 0.062 m), the 0.20 m max (0.316 / 0.466 m) and \
-1.10 × ideal (1.20 / 1.18; no probe radius reaches it: 1.18 at 0.6 m).\n\
-- **The fine search with the receiver lowered to the snow (issue 6, fourth round).** Near \
-the victim the pulse noise is dominated by k_sen·|H| (ICRA eq. 10), so the position error \
-scales with the range: a 1.5 m deep victim is 2.5 m from a receiver held at 1 m and 1.7 m from \
-one at 0.2 m. Localized within 2 m of the estimate, the receiver asks once to \
-\"LOWER TO SNOW\" (`guidance::HeightPrompt`); the lowering (≈ 0.8 m, 1 s) is measured by the \
-accelerometer (`motion::LiftTracker`, now frozen over walks and settled 0.3 s after them, so \
-that a rescuer who stops and lowers has the whole move measured) and enters the filter as an \
-absolute, unscaled displacement — it breaks the scale symmetry like the lift; the receiver \
-tracks its height from the measured moves (`Receiver::height_m`, depth shown = −p_z − \
-height) and asks to \"RAISE TO 1M\" when a lowered receiver's target is more than 6 m away. \
-Calibrated, lowered vs the checked-in build before it (receiver at 1 m), seeds 1–100 / \
-1000–1099: probe-point error max / mean / median 0.851 / 0.117 / 0.075 → 0.664 / 0.086 / \
-0.062 m and 0.834 / 0.125 / 0.080 → 0.651 / 0.112 / 0.071 m; > 0.20 m in 18 → 8 and 19 → 16 \
-runs; depth error median 0.065 → 0.044 and 0.062 → 0.051 m; steps / ideal median 1.261 → \
-1.233 and 1.292 → 1.231; failures 1 → 1 (seed 80; 1078). Without calibration the lowering \
-pins the scale: depth error median 0.380 → 0.085 and 0.383 → 0.091 m, probe-point error \
-median 0.094 → 0.066 and 0.081 → 0.076 m, steps / ideal 1.381 → 1.296 and 1.334 → 1.247, \
-failures 4 → 3 (18, 19, 53) and 3 → 2 (1063, 1078). The table above gives the same \
-comparison in this build (the case \"kept 1 m above the snow\"). Decided by measurement: (a) \
-no lowering when the estimated victim would be less than the estimator's shallowest modelled \
-range (`receiver_height + depth_min` = 1.3 m, its initialization prior) below the lowered \
-receiver, i.e. shallower than ≈ 1.1 m: lowering every victim gave max 1.836 m and 11 \
-re-initializations on seeds 1–100 (seed 21, 0.5 m deep: 0.7 m from the receiver, the \
-mixture re-initialized with a prior that cannot hold it and jumped by metres); their range \
-from 1 m is short anyway; (b) no lift once lowered: with it the uncalibrated case had 5 \
-failures and max 2.840 m on seeds 1–100 (3 and 0.380 m without); the lift stays for a \
-receiver that was not lowered (shallow victims) and is now rarely asked (see its table); (c) \
-no lowering while several victims are listed (`multi-report`): every mixture is initialized \
-with the walking height as its prior, and with several transmitters mixtures are \
-(re)initialized all along — victims found 356 / 360 with vs 360 / 360 without on seeds \
-101–130, and 600 / 604 vs 602 / 604 on seeds 1–50. The rescuer model stops, pauses 0.5 s, \
-lowers in a 1 s minimum-jerk move and walks on bent over with the same gait and step length \
-(the fine search's steps are short and deliberate either way; a slower bent-over cadence \
-would give more pulses per metre, so it is not assumed). Still missed: the 0.05 m median and \
-0.20 m max targets (0.062 / 0.071 m median, 0.664 / 0.651 m max) and 1.10 × ideal (1.23): \
-the remaining tail is deep victims (2.2–2.8 m: still 2.4–3.0 m from the lowered receiver; \
-seeds 8, 1038) and shallow ones the lowering does not reach (seeds 14, 1062: 0.4–0.5 m), and \
-the steps are spent before the fine search (flux line and the walk to the mean, see the phase \
-tables). The bullets below are from earlier rounds, their numbers from the builds of that \
-time.\n\
-- **Flux line at the edge of reception.** The failures of the calibrated case were weak \
-beacons first heard with |H| of a few σ_bkg: the classical 5 m rule (flip when |H| has not \
-grown) flipped at random there, because the best of noisy readings lies above the true value, \
-and trapped the rescuer on a few metres of flux line until the signal happened to reach the \
-filter's initialization threshold (10 σ_bkg). The flip now needs a significant decrease (2 σ \
-of one reading, ICRA eq. 10); walking the wrong way along a flux line makes |H| ∝ r⁻³ fall \
-fast, and near the dipole's equator either way leads in.\n\
-- **Flux line: the switch to the mean is not late.** Of the ≈ 23 flux-line pulses per \
-rescue (seeds 1–100, calibrated) ≈ 18 come before the mixture exists — the filter starts at \
-a pulse of |H| ≥ 10 σ_bkg (the estimator's `init_snr`) — and ≈ 5 after it; the IROS \
-Mahalanobis switch (receiver outside the 3σ ellipse, belief concentrated) follows within a \
-few pulses. Relaxing it (d² ≥ 4, or a belief twice as wide) gained under one pulse.\n\
-- **Fine search (the last 2 m).** It took about 20 pulses where the ideal walk takes about \
-2. The receiver's horizontal σ levels off at ≈ 0.1 m at 2–4 m range and rarely met the old \
-probe rule's fixed 3σ ≤ 0.3 m, so most probes came from the 16-pulse timeout over the mean, \
-without a sharper estimate at the end. The probe rule is now the issue's: the horizontal \
-distance to the mean within the estimate's uncertainty or within reach (0.5 m), and either \
-3σ ≤ 0.3 m on two pulses or the σ actually reached — no 10 % progress over 6 pulses, and at \
-most 0.15 m; one jump of the estimate beyond the bracketing span no longer restarts the \
-16-pulse count. This halved the fine search (seeds 1–100, calibrated: 13.7 + 8.1 → 5.5 + 5.9 \
-pulses; steps / ideal median 1.55 → 1.28, uncalibrated 1.64 → 1.38) and removed most \
-failures (calibrated 4 → 1, uncalibrated 14 → 4; seeds 1000–1099: 3 → 1, 12 → 3). The \
-median probe-point error stayed within the spread between seed ranges (0.076–0.111 m over \
-the four medians before, 0.089–0.102 m after); the largest errors moved both ways (seeds \
-1–100 calibrated 0.50 → 0.75 m, seeds 1000–1099 1.51 → 1.08 m), and the rescuer now stands \
-up to 0.5 m from the probe point (median 0.18 → 0.24 m). The remaining ≈ 11 pulses are the \
-step-by-step walk (each stop, pulse and 0.5 s reading lag costs ≈ 2 pulses; turning round on \
-the spot after an overshoot ≈ 3) and the estimate's jumps of 0.2–0.6 m as the receiver passes \
-over the victim. Wider bracketing (±1 m instead of ±0.5 m) was tried: the σ at the probe did \
-not shrink (0.087 vs 0.088 m) and the uncalibrated rescues got slower, so it stays at ±0.5 m. \
-Also tried and not kept: starting the bracketing on the far side of the mean (no turn-round on \
-arrival; under 0.3 pulses gained) and counting the timeout only within max(0.3 m, σ) of the \
-mean (more probe errors above 0.2 m). \
-The dead reckoning adds 0.2–0.6 m σ per pulse in the stop-and-go walk: the turn-around on the \
-spot (the device held 0.35 m ahead swings about the walker, unless they pivot about it — the \
-simulated rescuer does, the firmware cannot tell), the half-step credit of an overdue step and \
-each walk's start-up step.\n\
-- **Probe-point error.** At \"probe here\" the error tracks the receiver's own horizontal σ \
-(the consistency row: a median near the Rayleigh 1.18 means a consistent belief, the tail \
-does not): the error is the floor of the belief, not a bias of the probe rule. The largest \
-errors come from the 16-pulse timeout with σ still 0.2–0.4 m, or from a belief that is \
-confidently off (error ≫ σ), which no rule on σ can see. The 0.05 m / 0.20 m targets need \
-the belief near the victim to shrink to ≈ 0.04 m and stay consistent — an estimator matter \
-(its update near the victim, the dead reckoning's turn noise), the open item.\n\
-- **The tail, pulse by pulse (issue 6).** The worst seeds of both ranges (calibrated: 20, 8, \
-28, 83, 97; 1037, 1038, 1082, 1077, 1062), traced with `--trace`, and every seed of both \
-ranges compared at two moments: at the pulse that first showed \"probe here\" and at the end \
-of the run. Three classes: \
-(1) *the report's own bookkeeping* (fixed): the end-of-run error in `closed_loop::run` added \
-the estimate, a vector relative to the receiver at its last pulse (robocentric G_k), to the \
-receiver's position when the loop ended, up to a 0.5 s reading lag of walking later; 15 of \
-the 51 runs above 0.20 m (seeds 1–100: 9 of 26; 1000–1099: 6 of 25) were within 0.20 m at \
-the decision (seed 28 0.075 → 0.505 m, seed 39 0.029 → 0.446 m, seed 1037 0.42 → 0.89 m). \
-Latching the belief at the decision changed no number — no pulse arrives between the \
-decision and the end — so the estimate is now placed from its own pulse's pose, as the \
-per-pulse rows always were. Calibrated probe-point error max / mean / median before → after \
-the fix: seeds 1–100 0.852 / 0.153 / 0.084 → 0.851 / 0.117 / 0.075 m (> 0.20 m: 26 → 18 \
-runs), seeds 1000–1099 0.887 / 0.151 / 0.089 → 0.834 / 0.125 / 0.080 m (25 → 19); without \
-calibration (lift) 0.561 / 0.156 / 0.102 → 0.559 / 0.129 / 0.094 m and 0.943 / 0.161 / 0.097 \
-→ 0.441 / 0.121 / 0.081 m; steps and failures unchanged. The other closed-loop reports \
-(classic, baselines, multi's single-victim line) were regenerated with it. \
-(2) *the 16-pulse timeout at σ 0.2–0.4 m* over deep victims (1.5–2.9 m, 2.7–3.9 m from the \
-receiver) — 12 of the 18 and 6 of the 19 errors above 0.20 m; the trace shows the mixture \
-(20–80 Gaussians, split at this range) with σ_h flat at 0.2–0.35 m for 20–30 pulses and its \
-mean wandering 0.2–0.7 m from pulse to pulse, roughly as wide as its σ; \
-(3) *confidently off* (error > 3σ at the decision): 1 and 3 runs, shallow victims (seeds \
-e.g. 1062, 1044: 0.4 m deep). In the traced seeds the error oscillates around the victim \
-rather than settling on a wrong mode or sign. Tried, measured (calibrated, seeds 1–100 / \
-1000–1099, `rescue-report --tries 100 [--first-seed 1000] --calibrated-only`, before the \
-bookkeeping fix), not kept: \
-(a) the 16-pulse timeout only at σ_h ≤ 0.2 m, else bracketing on to 32 pulses — max 0.896 / \
-1.139 m, > 0.20 m in 25 / 27 runs, one more failure (seed 28): σ does not shrink with more \
-bracketing, so waiting only draws another sample of the wandering mean; \
-(b) circling the mean at 0.5 m radius, 60° per pulse, instead of bracketing back and forth \
-(half the turn noise per pulse) — 0.819 / 3.198 m, 21 / 23 runs, steps / ideal median 1.30 / \
-1.26 (a shallow victim, seed 1073, lost); \
-(c) diagnostic only: the dead reckoning's lever-arm turn noise cut from 0.35 to 0.05 m (the \
-simulated rescuer pivots about the device) — 0.818 / 4.010 m, 24 / 24 runs: the turn noise \
-is not what keeps σ at 0.2–0.3 m; \
-(d) bracketing offset max(0.5 m, 0.25 × range to the mean) for a wider baseline over deep \
-victims — > 0.20 m in 19 / 23 runs, medians 0.081 / 0.080 m, but max 0.923 / 0.948 m and, \
-uncalibrated, max 0.859 m (was 0.561) on 1–100 and median 0.120 m (was 0.097) on 1000–1099: \
-the tail moves to other seeds rather than shrinking. \
-Classes (2)–(3) need a sharper belief over deep victims (a longer vertical baseline: the \
-lift, asked for only above 0.2 m depth σ; or fewer, wider components at 2–4 m range), not a \
-different rule on σ.\n";
+display showed; each ends with the bound the fine search would give if it took only the \
+pulses of walking its 2 m at the ideal pace, so the gap between that bound and the measured \
+steps / ideal is the fine search's stop-and-go, lowering and confirming pulses. \
+`hal-sim rescue-report --trace SEED [--trace-case sog-uncalibrated]` prints one rescue pulse \
+by pulse; `--first-seed 1000` runs a separate range of scenarios. The search control's tuned \
+constants (probe radius, flux-line rules, bracketing, lowering) and what was measured for \
+each are in `docs/decisions/fine-search-guidance.md`.\n";
 
 const PROTOCOL: &str = "\
 Protocol (ICRA 2006 §VI): per seed a victim 40–70 m (horizontally) from the start at a random \

@@ -3,13 +3,15 @@
 //! parts of the board binary's supervision: the progress-checked watchdog feeder
 //! ([`watchdog`]), the crash record kept across a reset ([`crash`]), the guarded and
 //! recoverable I2C bus ([`i2c_bus`]), the sensor-fault and battery display
-//! ([`health`]) and the guidance tones ([`sound`]).
+//! ([`health`]), the guidance tones ([`sound`]) and the session log on the microSD card
+//! ([`sd_log`]).
 
 pub mod crash;
 pub mod health;
 pub mod i2c_bus;
 pub mod pins;
 pub mod profile;
+pub mod sd_log;
 pub mod sound;
 pub mod watchdog;
 
