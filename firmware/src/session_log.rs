@@ -183,6 +183,32 @@ fn plain(s: &str) -> bool {
     !s.chars().any(|c| c == '"' || c == '\\' || c.is_control())
 }
 
+/// `s` made writable as a JSON string without escaping, in `buf`: a `"` becomes `'`, a
+/// `\` or a control character (a newline) a space; cut at a character boundary when
+/// `buf` is too small. For texts from outside (a panic message) before they go into an
+/// event.
+pub fn plain_text<'a>(s: &str, buf: &'a mut [u8]) -> &'a str {
+    let mut n = 0;
+    for c in s.chars() {
+        let c = match c {
+            '"' => '\'',
+            '\\' => ' ',
+            c if c.is_control() => ' ',
+            c => c,
+        };
+        let mut tmp = [0u8; 4];
+        let bytes = c.encode_utf8(&mut tmp).as_bytes();
+        let Some(dst) = buf.get_mut(n..n + bytes.len()) else {
+            break;
+        };
+        dst.copy_from_slice(bytes);
+        n += bytes.len();
+    }
+    buf.get(..n)
+        .and_then(|b| core::str::from_utf8(b).ok())
+        .unwrap_or("")
+}
+
 /// An event record with extra keys `details` (key, value) after `kind` and `why`; keys and
 /// text values are checked like `kind`, numbers for finiteness, all before anything is
 /// written.
@@ -336,27 +362,61 @@ impl<W: Write> Recorder<W> {
         &mut self.w
     }
 
+    /// The writer, to look at.
+    pub fn writer_ref(&self) -> &W {
+        &self.w
+    }
+
     /// Gives the writer back.
     pub fn into_writer(self) -> W {
         self.w
     }
 }
 
-/// Writes to two writers (the SD card and the UART stream); fails when either fails, after
-/// giving the text to both, so a failing one does not starve the other.
+/// Writes to two writers (the SD card and the UART stream) and counts each one's failed
+/// writes. With a second writer it fails only when both fail, so that a dead card does
+/// not tear the UART's lines (a record's `write!` stops at its first error); with one
+/// writer it fails when that one fails.
 #[derive(Debug)]
 pub struct Tee<A, B> {
     /// The first writer.
     pub a: A,
     /// The second writer (`None`: not used).
     pub b: Option<B>,
+    errors: [u32; 2],
+}
+
+impl<A, B> Tee<A, B> {
+    /// Writes to `a` and, when given, `b`.
+    pub fn new(a: A, b: Option<B>) -> Self {
+        Self {
+            a,
+            b,
+            errors: [0; 2],
+        }
+    }
+
+    /// Failed writes of the first and of the second writer.
+    pub fn errors(&self) -> [u32; 2] {
+        self.errors
+    }
 }
 
 impl<A: Write, B: Write> Write for Tee<A, B> {
     fn write_str(&mut self, s: &str) -> core::fmt::Result {
         let ra = self.a.write_str(s);
-        let rb = self.b.as_mut().map_or(Ok(()), |b| b.write_str(s));
-        ra.and(rb)
+        let [ea, eb] = &mut self.errors;
+        if ra.is_err() {
+            *ea = ea.saturating_add(1);
+        }
+        let Some(b) = self.b.as_mut() else {
+            return ra;
+        };
+        let rb = b.write_str(s);
+        if rb.is_err() {
+            *eb = eb.saturating_add(1);
+        }
+        ra.or(rb)
     }
 }
 
@@ -534,22 +594,49 @@ mod tests {
     }
 
     #[test]
-    fn tee_writes_both_and_reports_either_failure() {
-        let mut t = Tee {
-            a: String::new(),
-            b: Some(FailAfter {
+    fn outside_text_is_made_plain_and_cut_on_a_character() {
+        let mut buf = [0u8; 16];
+        let t = plain_text("bad \"x\"\n@a\\b.rs:3", &mut buf);
+        assert_eq!(t, "bad 'x' @a b.rs:");
+        let mut s = String::new();
+        write_event(&mut s, 1.0, "reset", Some(t)).unwrap();
+        let mut small = [0u8; 5];
+        assert_eq!(plain_text("abcdé", &mut small), "abcd");
+    }
+
+    #[test]
+    fn tee_writes_both_and_fails_only_when_both_fail() {
+        let mut t = Tee::new(
+            String::new(),
+            Some(FailAfter {
                 out: String::new(),
                 left: 1,
             }),
-        };
+        );
         t.write_str("ab").unwrap();
-        assert!(t.write_str("cd").is_err());
+        t.write_str("cd").unwrap();
         assert_eq!(t.a, "abcd");
-        let mut t: Tee<String, String> = Tee {
-            a: String::new(),
-            b: None,
-        };
-        t.write_str("x").unwrap();
-        assert_eq!(t.a, "x");
+        assert_eq!(t.errors(), [0, 1]);
+        let mut t = Tee::new(
+            FailAfter {
+                out: String::new(),
+                left: 0,
+            },
+            Some(FailAfter {
+                out: String::new(),
+                left: 0,
+            }),
+        );
+        assert!(t.write_str("x").is_err());
+        assert_eq!(t.errors(), [1, 1]);
+        let mut t: Tee<FailAfter, String> = Tee::new(
+            FailAfter {
+                out: String::new(),
+                left: 0,
+            },
+            None,
+        );
+        assert!(t.write_str("x").is_err());
+        assert_eq!(t.errors(), [1, 0]);
     }
 }

@@ -757,8 +757,40 @@ const PROBE_STILL_PULSES: usize = 4; // pulses taken standing still before probi
 /// One closed-loop rescue (the papers' protocol): start 40–70 m away, 1 m/s, a pulse
 /// per transmitter period, stop at "probe here".
 pub fn run_closed_loop(seed: u64, noise: &MotionNoise) -> RunResult {
+    closed_loop(
+        seed,
+        noise,
+        40.0..=70.0,
+        |c| DefaultSog::new(c).ok().map(Box::new),
+        sog_components,
+        &mut |_, _| {},
+    )
+}
+
+/// As [`run_closed_loop`] (same scenario draw, walker and IROS III-C guidance), with the
+/// start distance drawn in `start_m` and any estimator guiding: `make` builds it from
+/// the SOGs filter's configuration (`None`: a run that never initialized); `observe`
+/// sees the estimator and the true victim offset (W axes) after every pulse.
+pub fn run_closed_loop_with<E: Estimator + ?Sized, B: std::ops::DerefMut<Target = E>>(
+    seed: u64,
+    noise: &MotionNoise,
+    start_m: std::ops::RangeInclusive<f64>,
+    make: impl FnOnce(SogConfig) -> Option<B>,
+    observe: &mut dyn FnMut(&E, &V3),
+) -> RunResult {
+    closed_loop(seed, noise, start_m, make, |_| Vec::new(), observe)
+}
+
+fn closed_loop<E: Estimator + ?Sized, B: std::ops::DerefMut<Target = E>>(
+    seed: u64,
+    noise: &MotionNoise,
+    start_m: std::ops::RangeInclusive<f64>,
+    make: impl FnOnce(SogConfig) -> Option<B>,
+    components: Components<E>,
+    observe: &mut dyn FnMut(&E, &V3),
+) -> RunResult {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let d0 = rng.random_range(40.0..=70.0);
+    let d0 = rng.random_range(start_m);
     let bearing: f64 = rng.random_range(-std::f64::consts::PI..std::f64::consts::PI);
     let depth = rng.random_range(0.3..=3.0);
     let tx = Transmitter::random(
@@ -776,7 +808,7 @@ pub fn run_closed_loop(seed: u64, noise: &MotionNoise) -> RunResult {
         TransmitterSpec::default().moment_range,
         noise,
     );
-    let Ok(mut filter) = DefaultSog::new(fcfg) else {
+    let Some(mut filter) = make(fcfg) else {
         return Tracker::new(seed, d0).finish();
     };
     let mut tracker = Tracker::new(seed, d0);
@@ -833,8 +865,8 @@ pub fn run_closed_loop(seed: u64, noise: &MotionNoise) -> RunResult {
         let attitude = noisy_attitude(&mut rng, noise, &rpy, false);
         tracker.truth_next = tx_p - walker.p;
         tracker.step(
-            &mut filter,
-            sog_components,
+            &mut *filter,
+            components,
             &motion,
             &attitude,
             &Pulse {
@@ -844,6 +876,7 @@ pub fn run_closed_loop(seed: u64, noise: &MotionNoise) -> RunResult {
         );
         let est = filter.estimate();
         tracker.record(est, &(tx_p - walker.p));
+        observe(&*filter, &(tx_p - walker.p));
         if filter.is_initialized() {
             if let Some((p0, r0)) = &previous {
                 let walked = (r0.transpose() * (walker.p - p0)).xy().norm();

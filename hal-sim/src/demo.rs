@@ -7,7 +7,7 @@ use crate::closed_loop::{self, ClosedLoopConfig, Outcome, PulseRow};
 use crate::plot;
 use anyhow::{Context, Result};
 use embedded_graphics::image::GetPixel;
-use embedded_graphics::pixelcolor::{BinaryColor, Rgb888};
+use embedded_graphics::pixelcolor::BinaryColor;
 use embedded_graphics::prelude::*;
 use firmware::app::Receiver;
 use firmware::display::{self, Frame};
@@ -272,39 +272,6 @@ pub(crate) fn write_png(path: &Path, w: u32, h: u32, rgb: &[u8]) -> Result<()> {
     writer.write_image_data(rgb)?;
     writer.finish()?;
     Ok(())
-}
-
-/// An RGB byte buffer as an `embedded-graphics` target (for text on plots).
-pub(crate) struct Canvas<'a> {
-    pub(crate) buf: &'a mut [u8],
-    pub(crate) w: u32,
-    pub(crate) h: u32,
-}
-
-impl OriginDimensions for Canvas<'_> {
-    fn size(&self) -> Size {
-        Size::new(self.w, self.h)
-    }
-}
-
-impl DrawTarget for Canvas<'_> {
-    type Color = Rgb888;
-    type Error = core::convert::Infallible;
-
-    fn draw_iter<I>(&mut self, pixels: I) -> Result<(), Self::Error>
-    where
-        I: IntoIterator<Item = embedded_graphics::Pixel<Self::Color>>,
-    {
-        for embedded_graphics::Pixel(p, c) in pixels {
-            if p.x >= 0 && p.y >= 0 && (p.x as u32) < self.w && (p.y as u32) < self.h {
-                let i = ((p.y as u32 * self.w + p.x as u32) * 3) as usize;
-                if let Some(px) = self.buf.get_mut(i..i + 3) {
-                    px.copy_from_slice(&[c.r(), c.g(), c.b()]);
-                }
-            }
-        }
-        Ok(())
-    }
 }
 
 const PLOT_W: u32 = 900;

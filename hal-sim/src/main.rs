@@ -39,7 +39,8 @@ enum Command {
         #[arg(long)]
         strict: bool,
     },
-    /// Summarize a session log: duration, pulse count, IMU rate, gaps.
+    /// Summarize a session log, per segment (a second header starts one): duration, pulse
+    /// count, IMU rate, gaps; then what was skipped. Streamed (bounded memory).
     Inspect {
         /// The session log (JSON Lines).
         log: PathBuf,
@@ -90,12 +91,19 @@ enum Command {
     ClassicReport(hal_sim::classic_loop::Args),
 }
 
-fn read_log(path: &Path) -> Result<session::Session> {
-    let s = session::read_file(path).with_context(|| format!("reading {}", path.display()))?;
-    for w in &s.warnings {
-        eprintln!("warning: {}: {w}", path.display());
+/// `hal-sim inspect`: streams the log and summarizes each segment.
+fn run_inspect(log: &Path) -> Result<()> {
+    let name = log.display().to_string();
+    let f = std::fs::File::open(log).with_context(|| format!("reading {name}"))?;
+    let mut cap = replay::WarningCap::new(&name, replay::WARNINGS_SHOWN);
+    let input = std::io::BufReader::with_capacity(1 << 16, f);
+    let report = inspect::inspect_stream(input, |w| cap.warn(w, &mut std::io::stderr()))
+        .with_context(|| format!("reading {name}"))?;
+    if let Some(more) = cap.finish() {
+        eprintln!("{more}");
     }
-    Ok(s)
+    write!(std::io::stdout().lock(), "{report}")?;
+    Ok(())
 }
 
 /// `hal-sim replay`: streams the log (or standard input, live) through the firmware.
@@ -111,7 +119,8 @@ fn run_replay(log: &Path, receiver: Option<&Path>, strict: bool) -> Result<()> {
         log.display().to_string()
     };
     let opts = replay::StreamOptions { strict, live };
-    let on_warning = |w: &session::Warning| eprintln!("warning: {name}: {w}");
+    let mut cap = replay::WarningCap::new(&name, replay::WARNINGS_SHOWN);
+    let on_warning = |w: &session::Warning| cap.warn(w, &mut std::io::stderr());
     let mut out = std::io::BufWriter::new(std::io::stdout().lock());
     let (result, bar) = if live {
         let stdin = std::io::stdin().lock();
@@ -129,6 +138,9 @@ fn run_replay(log: &Path, receiver: Option<&Path>, strict: bool) -> Result<()> {
     };
     if let Some(bar) = bar {
         bar.finish_and_clear();
+    }
+    if let Some(more) = cap.finish() {
+        eprintln!("{more}");
     }
     match result {
         Ok(summary) => {
@@ -150,11 +162,7 @@ fn main() -> Result<()> {
             receiver,
             strict,
         } => run_replay(&log, receiver.as_deref(), strict),
-        Command::Inspect { log } => {
-            let s = read_log(&log)?;
-            write!(stdout.lock(), "{}", inspect::summarize(&s))?;
-            Ok(())
-        }
+        Command::Inspect { log } => run_inspect(&log),
         Command::FieldMap(args) => field_map::run(&args, &mut stdout.lock()),
         Command::Accuracy(args) => accuracy::run(&args, &mut stdout.lock()),
         Command::BudgetData(args) => budget_data::run(&args),

@@ -59,9 +59,21 @@ where
     DB: DrawingBackend + 'a,
     CT: CoordTranslate,
 {
+    draw_legend_at(chart, SeriesLabelPosition::UpperRight)
+}
+
+/// As [`draw_legend`], at `position` (for figures whose curves fill the upper right).
+pub fn draw_legend_at<'a, DB, CT>(
+    chart: &mut ChartContext<'a, DB, CT>,
+    position: SeriesLabelPosition,
+) -> anyhow::Result<()>
+where
+    DB: DrawingBackend + 'a,
+    CT: CoordTranslate,
+{
     chart
         .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
+        .position(position)
         .background_style(WHITE.mix(0.85))
         .border_style(RGBColor(160, 160, 160))
         .label_font((FONT, 13))

@@ -10,6 +10,83 @@ const MOMENT_RANGE: [f64; 2] = [1e-4, 1.0];
 /// snow plane, e.g. a victim up a slope).
 const DEPTH_RANGE_M: [f64; 2] = [-2.0, 20.0];
 
+/// A numeric value of the configuration by key (`None`: absent, not checked).
+type Get = fn(&ReceiverConfig) -> Option<f64>;
+
+/// Every numeric key, its plausible range and unit, in the order checked (the spec's
+/// ranges table in `docs/session-log.md`).
+const RANGES: &[(&str, Get, [f64; 2], &str)] = &[
+    ("m_min", |c| Some(c.m_min), MOMENT_RANGE, "A·m²"),
+    ("m_nom", |c| Some(c.m_nom), MOMENT_RANGE, "A·m²"),
+    ("m_max", |c| Some(c.m_max), MOMENT_RANGE, "A·m²"),
+    (
+        "pulse_noise.sigma_bkg_A_per_m",
+        |c| Some(c.pulse_noise.sigma_bkg_a_per_m),
+        [0.0, 1e-5],
+        "A/m",
+    ),
+    (
+        "pulse_noise.k_sen",
+        |c| Some(c.pulse_noise.k_sen),
+        [0.0, 0.5],
+        "",
+    ),
+    (
+        "imu.hz",
+        |c| Some(c.imu.hz),
+        crate::session::IMU_HZ_RANGE,
+        "Hz",
+    ),
+    (
+        "imu.gyr_noise_rad_s",
+        |c| Some(c.imu.gyr_noise_rad_s),
+        [0.0, 1.0],
+        "rad/s",
+    ),
+    (
+        "imu.gyr_bias_max_rad_s",
+        |c| Some(c.imu.gyr_bias_max_rad_s),
+        [0.0, 1.0],
+        "rad/s",
+    ),
+    (
+        "imu.acc_noise_m_s2",
+        |c| Some(c.imu.acc_noise_m_s2),
+        [0.0, 10.0],
+        "m/s²",
+    ),
+    (
+        "imu.mag_noise_uT",
+        |c| Some(c.imu.mag_noise_ut),
+        [0.0, 50.0],
+        "µT",
+    ),
+    (
+        "victim_depth_range_m[0]",
+        |c| Some(c.victim_depth_range_m[0]),
+        DEPTH_RANGE_M,
+        "m",
+    ),
+    (
+        "victim_depth_range_m[1]",
+        |c| Some(c.victim_depth_range_m[1]),
+        DEPTH_RANGE_M,
+        "m",
+    ),
+    (
+        "receiver_height_m",
+        |c| Some(c.receiver_height_m),
+        [0.0, 3.0],
+        "m",
+    ),
+    (
+        "pdr.step_length_m",
+        |c| c.pdr.as_ref().map(|p| p.step_length_m),
+        [0.2, 1.5],
+        "m",
+    ),
+];
+
 /// What each known key must be: a number, a boolean, an object of these, or two numbers.
 enum Kind {
     Number,
@@ -220,13 +297,10 @@ impl ReceiverConfig {
     /// `docs/session-log.md`), else a message naming the first key out of range and its
     /// allowed range.
     pub fn validate(&self) -> Result<(), String> {
-        use crate::session::check_range;
-        for (key, v) in [
-            ("m_min", self.m_min),
-            ("m_nom", self.m_nom),
-            ("m_max", self.m_max),
-        ] {
-            check_range(key, v, MOMENT_RANGE, "A·m²")?;
+        for (key, get, range, unit) in RANGES {
+            if let Some(v) = get(self) {
+                crate::session::check_range(key, v, *range, unit)?;
+            }
         }
         if !(self.m_min <= self.m_nom && self.m_nom <= self.m_max) {
             return Err(format!(
@@ -234,41 +308,11 @@ impl ReceiverConfig {
                 self.m_min, self.m_nom, self.m_max
             ));
         }
-        let n = &self.pulse_noise;
-        check_range(
-            "pulse_noise.sigma_bkg_A_per_m",
-            n.sigma_bkg_a_per_m,
-            [0.0, 1e-5],
-            "A/m",
-        )?;
-        check_range("pulse_noise.k_sen", n.k_sen, [0.0, 0.5], "")?;
-        let i = &self.imu;
-        check_range("imu.hz", i.hz, crate::session::IMU_HZ_RANGE, "Hz")?;
-        check_range(
-            "imu.gyr_noise_rad_s",
-            i.gyr_noise_rad_s,
-            [0.0, 1.0],
-            "rad/s",
-        )?;
-        check_range(
-            "imu.gyr_bias_max_rad_s",
-            i.gyr_bias_max_rad_s,
-            [0.0, 1.0],
-            "rad/s",
-        )?;
-        check_range("imu.acc_noise_m_s2", i.acc_noise_m_s2, [0.0, 10.0], "m/s²")?;
-        check_range("imu.mag_noise_uT", i.mag_noise_ut, [0.0, 50.0], "µT")?;
         let [lo, hi] = self.victim_depth_range_m;
-        check_range("victim_depth_range_m[0]", lo, DEPTH_RANGE_M, "m")?;
-        check_range("victim_depth_range_m[1]", hi, DEPTH_RANGE_M, "m")?;
         if lo > hi {
             return Err(format!(
                 "victim_depth_range_m = [{lo}, {hi}]: the first must not exceed the second"
             ));
-        }
-        check_range("receiver_height_m", self.receiver_height_m, [0.0, 3.0], "m")?;
-        if let Some(p) = &self.pdr {
-            check_range("pdr.step_length_m", p.step_length_m, [0.2, 1.5], "m")?;
         }
         Ok(())
     }
@@ -278,7 +322,9 @@ impl ReceiverConfig {
         use anyhow::Context;
         let text =
             std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-        Self::from_json(&text).with_context(|| format!("parsing {}", path.display()))
+        // A byte-order mark (editors on some systems write one) is not part of the JSON.
+        let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
+        Self::from_json(text).with_context(|| format!("parsing {}", path.display()))
     }
 
     /// The JSON text (one line, keys in the spec's order).
@@ -420,6 +466,54 @@ mod tests {
         // An explicit null pdr is "not calibrated"; unknown keys of any shape are ignored.
         let c = ReceiverConfig::from_json(r#"{"pdr":null,"x":[1],"imu":{"y":"z"}}"#).unwrap();
         assert_eq!(c, ReceiverConfig::default());
+    }
+
+    #[test]
+    fn every_numeric_key_has_a_range() {
+        fn numbers(prefix: &str, keys: &[(&str, Kind)], out: &mut Vec<String>) {
+            for (key, kind) in keys {
+                let path = if prefix.is_empty() {
+                    (*key).to_string()
+                } else {
+                    format!("{prefix}.{key}")
+                };
+                match kind {
+                    Kind::Number => out.push(path),
+                    Kind::Pair => {
+                        out.push(format!("{path}[0]"));
+                        out.push(format!("{path}[1]"));
+                    }
+                    Kind::Object(inner) | Kind::OptObject(inner) => numbers(&path, inner, out),
+                    Kind::Bool => {}
+                }
+            }
+        }
+        let mut keys = Vec::new();
+        numbers("", KEYS, &mut keys);
+        let ranged: Vec<&str> = RANGES.iter().map(|r| r.0).collect();
+        keys.sort();
+        let mut sorted = ranged.clone();
+        sorted.sort();
+        assert_eq!(keys, sorted);
+        // Each range holds the default (the simulator's world) and refuses what is
+        // just outside it, naming the key and the range.
+        for (key, get, [lo, hi], _) in RANGES {
+            let mut c = ReceiverConfig {
+                pdr: Some(Pdr { step_length_m: 0.7 }),
+                ..ReceiverConfig::default()
+            };
+            assert!(get(&c).is_some_and(|v| v >= *lo && v <= *hi), "{key}");
+            let text = serde_json::to_value(&c).unwrap();
+            for bad in [lo - 1e-3 * (hi - lo).max(1e-9), hi + 1e-3 * (hi - lo)] {
+                let mut v = text.clone();
+                let ptr = format!("/{}", key.replace(['.', '['], "/").replace(']', ""));
+                *v.pointer_mut(&ptr).unwrap() = bad.into();
+                c = serde_json::from_value(v).unwrap();
+                let e = c.validate().unwrap_err();
+                assert!(e.starts_with(&format!("{key} = ")), "{key}: {e}");
+                assert!(e.contains(&format!("[{lo}, {hi}]")), "{key}: {e}");
+            }
+        }
     }
 
     #[test]

@@ -226,6 +226,51 @@ impl std::fmt::Display for ReplaySummary {
     }
 }
 
+/// Warnings shown on the terminal before only their number is kept: a log of a million
+/// garbage lines would otherwise print a million lines (the summary counts them all).
+pub const WARNINGS_SHOWN: u64 = 20;
+
+/// Writes reading warnings for the log `name`: the first `limit` in full, then only a
+/// count, reported by [`WarningCap::finish`].
+#[derive(Debug, Clone)]
+pub struct WarningCap {
+    name: String,
+    limit: u64,
+    seen: u64,
+}
+
+impl WarningCap {
+    /// A cap of `limit` warnings for the log `name`.
+    pub fn new(name: &str, limit: u64) -> Self {
+        Self {
+            name: name.to_string(),
+            limit,
+            seen: 0,
+        }
+    }
+
+    /// Writes `w` to `out` unless `limit` warnings were written already.
+    pub fn warn(&mut self, w: &Warning, out: &mut impl Write) {
+        self.seen += 1;
+        if self.seen <= self.limit {
+            // A closed stderr is no reason to stop a replay.
+            let _ = writeln!(out, "warning: {}: {w}", self.name);
+        }
+    }
+
+    /// The line telling how many warnings were not shown, if any.
+    pub fn finish(&self) -> Option<String> {
+        (self.seen > self.limit).then(|| {
+            format!(
+                "warning: {}: {} more warning(s) not shown ({} in all)",
+                self.name,
+                self.seen - self.limit,
+                self.seen
+            )
+        })
+    }
+}
+
 /// Streams a session log from `input` through the firmware's pipeline configured by
 /// `receiver` (a fresh one per segment), writing one JSON line per pulse record to `out`
 /// in file order. Warnings go to `on_warning` as they come; `on_progress` gets the bytes
@@ -361,6 +406,29 @@ pub fn replay_stream_with(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn warnings_beyond_the_cap_are_counted_not_shown() {
+        let mut cap = WarningCap::new("x.jsonl", 2);
+        let mut out = Vec::new();
+        for line in 1..=5 {
+            let w = Warning {
+                line,
+                message: "bad".into(),
+            };
+            cap.warn(&w, &mut out);
+        }
+        let text = String::from_utf8(out).unwrap();
+        assert_eq!(
+            text,
+            "warning: x.jsonl: line 1: bad\nwarning: x.jsonl: line 2: bad\n"
+        );
+        assert_eq!(
+            cap.finish().as_deref(),
+            Some("warning: x.jsonl: 3 more warning(s) not shown (5 in all)")
+        );
+        assert_eq!(WarningCap::new("y", 2).finish(), None);
+    }
 
     #[test]
     fn direction_convention() {

@@ -143,6 +143,10 @@ pub struct Simulation {
     pub truth: Session,
     /// What the receiver is told.
     pub receiver: ReceiverConfig,
+    /// When each pulse record (in `session` order) was written, s: the session log is then
+    /// written in a receiver's order with `seq` ([`crate::session::write_as_written`]);
+    /// `None`: sorted by `t` (the measurement level).
+    pub pulse_written_t: Option<Vec<f64>>,
 }
 
 /// Independent random streams of one seed (shared with the bus level so both levels
@@ -333,6 +337,7 @@ pub fn simulate(cfg: &ScenarioConfig) -> Simulation {
         session,
         truth,
         receiver,
+        pulse_written_t: None,
     }
 }
 
@@ -355,7 +360,10 @@ impl Simulation {
     /// The session log's bytes.
     pub fn session_bytes(&self) -> Vec<u8> {
         let mut v = Vec::new();
-        let _ = self.session.write(&mut v);
+        let _ = match &self.pulse_written_t {
+            Some(w) => crate::session::write_as_written(&self.session, w, &mut v),
+            None => self.session.write(&mut v),
+        };
         v
     }
 

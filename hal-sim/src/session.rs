@@ -50,6 +50,16 @@ pub const IMU_HZ_RANGE: [f64; 2] = [1.0, 10_000.0];
 /// Plausible magnitudes of the geomagnetic field, µT (≈ 22 to 67 µT on Earth).
 pub const EARTH_FIELD_UT_RANGE: [f64; 2] = [15.0, 80.0];
 
+/// `v` for a message: plain between 1e-4 and 1e6, else in scientific notation (Rust's
+/// `{}` would print 1e308 with 309 digits).
+pub(crate) fn number(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() || (1e-4..1e6).contains(&v.abs()) {
+        format!("{v}")
+    } else {
+        format!("{v:e}")
+    }
+}
+
 /// `Ok` when `v` lies in `[lo, hi]`, else the message naming `key` and the range.
 pub(crate) fn check_range(key: &str, v: f64, [lo, hi]: [f64; 2], unit: &str) -> Result<(), String> {
     if v >= lo && v <= hi {
@@ -60,7 +70,10 @@ pub(crate) fn check_range(key: &str, v: f64, [lo, hi]: [f64; 2], unit: &str) -> 
         } else {
             format!(" {unit}")
         };
-        Err(format!("{key} = {v} is outside [{lo}, {hi}]{unit}"))
+        Err(format!(
+            "{key} = {} is outside [{lo}, {hi}]{unit}",
+            number(v)
+        ))
     }
 }
 
@@ -308,6 +321,48 @@ fn write_line(out: &mut impl Write, v: &Tagged<'_>) -> std::io::Result<()> {
     out.write_all(b"\n")
 }
 
+/// Writes `session` as a receiver writes it (the spec's writer rules): each pulse record
+/// when its front end finished it — `written_t[k]` for the k-th pulse, at or after its
+/// own `t`, i.e. after the records up to then — instead of sorted by `t`, and every
+/// record after the header numbered by `seq` (0, 1, …) in file order. Records other than
+/// pulses keep their `t` order; events are not written (a simulation has none).
+pub fn write_as_written(
+    session: &Session,
+    written_t: &[f64],
+    out: &mut impl Write,
+) -> std::io::Result<()> {
+    write_line(out, &Tagged::Header(&session.header))?;
+    let mut seq = 0u64;
+    let mut put = |out: &mut dyn Write, r: &Record| -> std::io::Result<()> {
+        let mut line = Vec::new();
+        write_record(&mut line, r)?;
+        // `{"type":…` → `{"seq":n,"type":…`
+        out.write_all(format!("{{\"seq\":{seq},").as_bytes())?;
+        out.write_all(line.get(1..).unwrap_or_default())?;
+        seq += 1;
+        Ok(())
+    };
+    let mut held: std::collections::VecDeque<(f64, &Record)> = Default::default();
+    let mut k = 0;
+    for r in &session.records {
+        if let Record::Pulse(p) = r {
+            let w = written_t.get(k).copied().unwrap_or(p.t).max(p.t);
+            k += 1;
+            held.push_back((w, r));
+            continue;
+        }
+        while let Some((_, p)) = held.front().filter(|(w, _)| *w <= r.t()).copied() {
+            put(out, p)?;
+            held.pop_front();
+        }
+        put(out, r)?;
+    }
+    for (_, p) in held {
+        put(out, p)?;
+    }
+    Ok(())
+}
+
 /// Reads a whole single-segment session log from a file (see [`read`]).
 pub fn read_file(path: &Path) -> Result<Session, SessionError> {
     let f = std::fs::File::open(path)?;
@@ -457,6 +512,8 @@ pub struct Reader<R> {
     last_seq: Option<u64>,
     warnings: Vec<Warning>,
     stats: ReadStats,
+    /// An error to hand on once the items released before it are.
+    failed: Option<SessionError>,
     done: bool,
 }
 
@@ -484,6 +541,7 @@ impl<R: BufRead> Reader<R> {
             last_seq: None,
             warnings: Vec::new(),
             stats: ReadStats::default(),
+            failed: None,
             done: false,
         }
     }
@@ -523,10 +581,18 @@ impl<R: BufRead> Reader<R> {
             if let Some(x) = self.out.pop_front() {
                 return Ok(Some(x));
             }
+            // An error comes after what was released before it (the records of a
+            // segment ended by an unusable header are still handed on).
+            if let Some(e) = self.failed.take() {
+                self.done = true;
+                return Err(e);
+            }
             if self.done {
                 return Ok(None);
             }
-            self.read_one()?;
+            if let Err(e) = self.read_one() {
+                self.failed = Some(e);
+            }
         }
     }
 
@@ -666,11 +732,12 @@ impl<R: BufRead> Reader<R> {
         let (seq, parsed) = parsed;
         let line = self.line_no;
         if let Parsed::Header(h) = parsed {
+            // The segment before ends either way: its records are good.
+            self.end_segment();
             h.validate().map_err(|message| SessionError::Line {
                 line,
                 message: format!("header: {message}"),
             })?;
-            self.end_segment();
             self.in_segment = true;
             self.stats.segments += 1;
             self.last_seq = seq;

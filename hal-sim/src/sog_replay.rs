@@ -65,6 +65,9 @@ pub fn app_config(header: &Header, receiver: &ReceiverConfig) -> AppConfig {
     let mut cfg = AppConfig::new(earth, step);
     cfg.motion = motion;
     cfg.sog = sog_config(receiver, cfg.sog);
+    // One sign only when both the log and the receiver say it is known: trying both signs
+    // of a signed pulse costs information, taking one of an unsigned pulse is wrong.
+    cfg.sog.sign_ambiguous = header.sign_ambiguous || receiver.sign_ambiguous;
     cfg.guidance.receiver_height_m = cfg.sog.receiver_height;
     cfg
 }

@@ -1,33 +1,8 @@
 //! The `hal-sim` binary end to end.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
-use std::path::Path;
-use std::process::{Command, Output};
+mod common;
 
-fn hal_sim(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_hal-sim"))
-        .args(args)
-        .output()
-        .unwrap()
-}
-
-fn text(b: &[u8]) -> String {
-    String::from_utf8_lossy(b).into_owned()
-}
-
-fn simulate_into(dir: &Path, seed: &str) {
-    let out = hal_sim(&[
-        "simulate",
-        "--preset",
-        "paper",
-        "--seed",
-        seed,
-        "--max-duration-s",
-        "40",
-        "--out",
-        dir.to_str().unwrap(),
-    ]);
-    assert!(out.status.success(), "{}", text(&out.stderr));
-}
+use common::{hal_sim, simulate_into, text};
 
 #[test]
 fn simulate_inspect_replay() {

@@ -1,44 +1,14 @@
 //! `hal-sim replay` on damaged and reordered logs, end to end: a simulated log in the
 //! board's order, with a byte-order mark, torn, with garbage, concatenated, with lost
-//! records (`seq`), piped into `head`, and fed live on standard input.
+//! records (`seq`), piped into `head`, and fed live on standard input; a bus-level
+//! simulation written as the board writes (pulses late, `seq`).
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+mod common;
+
+use common::{hal_sim, is_pulse, joined, simulated, t_of, text};
 use std::io::{BufRead, BufReader, Write};
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
-
-fn hal_sim(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_hal-sim"))
-        .args(args)
-        .output()
-        .unwrap()
-}
-
-fn text(b: &[u8]) -> String {
-    String::from_utf8_lossy(b).into_owned()
-}
-
-/// A 40 s simulated search: (directory, its log lines).
-fn simulated(tmp: &Path) -> (PathBuf, Vec<String>) {
-    let dir = tmp.join("sim");
-    let out = hal_sim(&[
-        "simulate",
-        "--preset",
-        "paper",
-        "--seed",
-        "3",
-        "--max-duration-s",
-        "40",
-        "--out",
-        dir.to_str().unwrap(),
-    ]);
-    assert!(out.status.success(), "{}", text(&out.stderr));
-    let lines = std::fs::read_to_string(dir.join("session.jsonl"))
-        .unwrap()
-        .lines()
-        .map(String::from)
-        .collect();
-    (dir, lines)
-}
+use std::path::Path;
+use std::process::{Command, Stdio};
 
 /// Replays `log` (bytes) with the simulation's receiver.json: (stdout lines, stderr, ok).
 fn replay(dir: &Path, name: &str, log: &[u8], extra: &[&str]) -> (Vec<String>, String, bool) {
@@ -55,21 +25,6 @@ fn replay(dir: &Path, name: &str, log: &[u8], extra: &[&str]) -> (Vec<String>, S
     let out = hal_sim(&args);
     let lines = text(&out.stdout).lines().map(String::from).collect();
     (lines, text(&out.stderr), out.status.success())
-}
-
-fn joined(lines: &[String]) -> Vec<u8> {
-    let mut s = lines.join("\n");
-    s.push('\n');
-    s.into_bytes()
-}
-
-fn is_pulse(l: &str) -> bool {
-    l.contains("\"type\":\"pulse\"")
-}
-
-fn t_of(l: &str) -> f64 {
-    let v: serde_json::Value = serde_json::from_str(l).unwrap();
-    v["t"].as_f64().unwrap()
 }
 
 #[test]
@@ -222,4 +177,56 @@ fn live_mode_answers_each_pulse_as_it_arrives() {
     assert!(out.status.success(), "{}", text(&out.stderr));
     assert!(out.stdout.is_empty());
     assert!(answered >= 10, "{answered} answered");
+}
+
+#[test]
+fn a_bus_level_log_is_written_in_the_boards_order_and_replays() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("bus");
+    let out = hal_sim(&[
+        "simulate",
+        "--preset",
+        "paper",
+        "--seed",
+        "3",
+        "--max-duration-s",
+        "80",
+        "--bus",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let log = std::fs::read_to_string(dir.join("session.jsonl")).unwrap();
+    let lines: Vec<&str> = log.lines().collect();
+    // Every record numbered in file order.
+    for (k, l) in lines[1..].iter().enumerate() {
+        assert!(l.starts_with(&format!("{{\"seq\":{k},\"type\":")), "{l}");
+    }
+    // Each pulse after the records up to when the front end finished it: later than its
+    // own t, within the spec's 2 s window.
+    let mut latest = f64::NEG_INFINITY;
+    let mut late = 0;
+    for l in &lines[1..] {
+        let t = t_of(l);
+        if is_pulse(l) && t < latest {
+            assert!(latest - t <= 2.0, "{l} written at {latest}");
+            late += 1;
+        }
+        latest = latest.max(t);
+    }
+    let pulses = lines.iter().filter(|l| is_pulse(l)).count();
+    assert!(
+        pulses >= 5 && late > 0,
+        "{late} of {pulses} pulses after later records"
+    );
+    let (out, err, ok) = replay(&dir, "session.jsonl", log.as_bytes(), &[]);
+    assert!(ok && !err.contains("warning"), "{err}");
+    assert_eq!(out.len(), pulses);
+    // The same records sorted by t replay the same.
+    let mut sorted: Vec<String> = lines[1..].iter().map(|l| l.to_string()).collect();
+    sorted.sort_by(|a, b| t_of(a).total_cmp(&t_of(b)));
+    sorted.insert(0, lines[0].to_string());
+    let (again, err, ok) = replay(&dir, "sorted.jsonl", &joined(&sorted), &[]);
+    assert!(ok, "{err}");
+    assert_eq!(again, out);
 }

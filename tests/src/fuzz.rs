@@ -624,6 +624,11 @@ pub fn app_receiver(data: &[u8]) {
     let _ = rx.display_model();
 }
 
+// --- receiver_json, replay: tests/src/fuzz/replay_path.rs ----------------------------
+
+mod replay_path;
+pub use replay_path::{receiver_json, replay};
+
 /// A harness: takes the fuzz input, panics on a failure.
 pub type Harness = fn(&[u8]);
 
@@ -635,4 +640,6 @@ pub const TARGETS: &[(&str, Harness)] = &[
     ("ads131m04_frames", ads131m04_frames),
     ("imu_driver", imu_driver),
     ("app_receiver", app_receiver),
+    ("receiver_json", receiver_json),
+    ("replay", replay),
 ];

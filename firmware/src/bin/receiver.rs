@@ -1,6 +1,7 @@
 //! Board binary of the receiver (reference board: STM32F405RG on the Adafruit Feather
 //! STM32F405 Express, 12 MHz crystal). Flash and run with `cargo board-run` (probe-rs);
-//! logs arrive over RTT (defmt), the session log over USART3.
+//! logs arrive over RTT (defmt), the session log goes to the microSD card (one file per
+//! session) and over USART3.
 //!
 //! The application itself is [`firmware::app::Receiver`] — the very type `hal-sim`
 //! drives on the PC; this file only binds it to the hardware:
@@ -9,7 +10,8 @@
 //! |---|---|---|
 //! | antenna ADC ADS131M04 (SPI mode 1, 8 MHz; CLKIN 8.192 MHz from its own oscillator) | SPI2, EXTI7 | SCK PB13 (SCK), MISO PB14 (MISO), MOSI PB15 (MOSI), CS PB9 (D10), DRDY PC7 (D5) |
 //! | IMU BMI160 (acc+gyr) + LSM303AGR (mag), SSD1306 128×64 display | I2C1, 400 kHz, shared | SCL PB6 (SCL), SDA PB7 (SDA) |
-//! | session-log stream (spec `arva-session` v1, 921 600 Bd) | USART3 TX | PB10 (TX) |
+//! | session-log stream (spec `arva-session` v1, 921 600 Bd; optional, [`UART_LOG`]) | USART3 TX | PB10 (TX) |
+//! | session log on the microSD card (FAT, `SESSnnnn.LOG`, flushed every 0.5 s) | SDIO 4-bit, card detect | PC8–PC11 (D0–D3), PC12 (CLK), PD2 (CMD), PB12 (detect; all on board) |
 //! | IMU sample clock (100 Hz) | TIM2 | – |
 //! | mark button (push button to ground, internal pull-up; polled at 100 Hz, debounced) | GPIO | PC6 (D6) |
 //! | fault LED (the Feather's red LED): lit while a sensor fault holds or the display is down | GPIO | PC1 (D13) |
@@ -56,6 +58,9 @@
 // and read-only reads of GPIOB's input register.
 #![allow(unsafe_code)]
 
+#[path = "receiver/sd_card.rs"]
+mod sd_card;
+
 use core::cell::RefCell;
 use core::mem::MaybeUninit;
 use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
@@ -69,18 +74,22 @@ use embedded_hal::delay::DelayNs;
 use embedded_hal_bus::i2c::RefCellDevice;
 use embedded_hal_bus::spi::ExclusiveDevice;
 use firmware::app::Receiver;
+use firmware::board::board_log::BoardLog;
 use firmware::board::crash::{self, CrashKind, CrashRecord, LastReset};
 use firmware::board::health::{self, Battery, BatteryState, Fault, SensorHealth};
 use firmware::board::i2c_bus::{self, ClearError, Cleared, Guarded, Recoverable};
+use firmware::board::sd_log::SdState;
+use firmware::board::settings::{self, Settings};
 use firmware::board::sound::{self, SoundInput};
 use firmware::board::watchdog::{MonotonicMs, ProgressWatch, Verdict, Work};
 use firmware::board::{self, BoardProfile, pins};
+use firmware::display;
 use firmware::drivers::ads131m04::Ads131m04;
 use firmware::drivers::imu::Imu;
 use firmware::frontend::{Frontend, PulseMeasurement};
+use firmware::session_log::Detail;
 use firmware::timebase::{ClockEvent, Instant, SampleClock, pulse_centre_us};
 use firmware::victims::MarkButton;
-use firmware::{display, session_log};
 use heapless::spsc::{Consumer, Producer, Queue};
 use ssd1306::{I2CDisplayInterface, Ssd1306, prelude::*};
 use stm32f4xx_hal::adc::Adc;
@@ -111,6 +120,11 @@ const PROGRESS_LIMIT_MS: [u64; 2] = [1000, 500];
 const RESET_REPORT_MS: u32 = 3000;
 /// I2C1's bus clock.
 const I2C_HZ: u32 = 400_000;
+/// The session log also streams over USART3 (921 600 Bd), for a host attached by wire.
+const UART_LOG: bool = true;
+/// Crash-record text marking the SD card's bring-up: a watchdog reset there (a card that
+/// never leaves power-up) is reported with it, and the next boot leaves the card alone.
+const SD_INIT_MARK: &str = "SD card bring-up";
 /// Guidance tones on at boot (the sound button toggles them; not stored until settings
 /// live in flash).
 const SOUND_ON: bool = true;
@@ -387,6 +401,11 @@ fn watch_adc(event: ClockEvent) -> ClockEvent {
     event
 }
 
+/// Board time for the session log's records, s.
+fn log_t(clock: &SampleClock) -> f64 {
+    clock.now().secs_f64()
+}
+
 /// Clears `screen` and draws `model` with the health overlay (a sensor fault over the
 /// status word, the battery gauge) on it; false if the display did not take it.
 fn show(
@@ -394,10 +413,12 @@ fn show(
     model: &firmware::app::DisplayModel,
     fault: Option<Fault>,
     battery: Option<BatteryState>,
+    sd: SdState,
 ) -> bool {
     screen.clear(BinaryColor::Off).ok();
     display::draw(model, screen).is_ok()
         && health::draw_overlay(fault, battery, screen).is_ok()
+        && health::draw_sd_mark(sd.fault_label(), screen).is_ok()
         && screen.flush().is_ok()
 }
 
@@ -441,13 +462,83 @@ fn main() -> ! {
         LastReset::WatchdogHung => defmt::error!("last reset: watchdog, main loop hung"),
     }
 
-    // Session-log stream first, so everything after it can be recorded.
-    let Ok(mut log) = dp.USART3.tx(gpiob.pb10, 921_600.bps(), &mut rcc) else {
+    // Session log first, so everything after it can be recorded: the microSD card (its
+    // bring-up marked in the crash record, see SD_INIT_MARK) and the UART stream.
+    let gpiod = dp.GPIOD.split(&mut rcc);
+    let card_in = gpiob.pb12.into_pull_up_input().is_low();
+    let sdio = stm32f4xx_hal::sdio::Sdio::new(
+        dp.SDIO,
+        (
+            gpioc.pc12, gpiod.pd2, gpioc.pc8, gpioc.pc9, gpioc.pc10, gpioc.pc11,
+        ),
+        &mut rcc,
+    );
+    let skip_sd = matches!(last_reset, LastReset::Starved(m) if m == SD_INIT_MARK);
+    store_crash(&CrashRecord::new(
+        CrashKind::Starved,
+        format_args!("{SD_INIT_MARK}"),
+    ));
+    iwdg.feed();
+    let sd = sd_card::mount(sdio, card_in, skip_sd, 0);
+    iwdg.feed();
+    // Bring-up over: clear the marker (the last reset's record was read before it).
+    let _marker = take_crash();
+    let Ok(uart) = dp.USART3.tx(gpiob.pb10, 921_600.bps(), &mut rcc) else {
         fatal("USART3 configuration refused");
     };
-    let earth = PROFILE.default_earth_field();
-    if session_log::write_header(&mut log, PROFILE.imu.rate_hz, &earth, true).is_err() {
-        defmt::warn!("session log: header not written");
+    let mut log = BoardLog::new(sd, UART_LOG.then_some(uart));
+    // The unit's settings from flash sector 11 (defaults, with the reason, when erased or
+    // corrupt).
+    // SAFETY: SETTINGS_LEN bytes of memory-mapped flash inside the reserved sector
+    // (memory.x), always readable; nothing writes flash while this boot reads it.
+    let stored = unsafe {
+        core::slice::from_raw_parts(settings::SETTINGS_ADDR as *const u8, settings::SETTINGS_LEN)
+    };
+    let (settings, settings_error) = Settings::load(stored);
+    let step_length_m = settings
+        .calibration
+        .step_length_m
+        .or(PROFILE.defaults.step_length_m);
+    let earth = settings.earth_field();
+    log.header(PROFILE.imu.rate_hz, &earth, true);
+    log.reset(0.0, &last_reset);
+    let region = settings::REGIONS
+        .get(usize::from(settings.region))
+        .map_or("?", |r| r.name);
+    log.event(
+        0.0,
+        "settings",
+        Some(if settings_error.is_some() {
+            "defaults"
+        } else {
+            "stored"
+        }),
+        &[
+            // "none": not calibrated (the step detector's default length applies).
+            (
+                "step_length_m",
+                step_length_m.map_or(Detail::Text("none"), Detail::Num),
+            ),
+            ("mode", Detail::Text("sog")),
+            ("volume", Detail::Int(i64::from(settings.volume))),
+            ("region", Detail::Text(region)),
+            (
+                "antenna_cal",
+                Detail::Flag(settings.calibration.antenna.is_some()),
+            ),
+            ("mag_cal", Detail::Flag(settings.calibration.mag.is_some())),
+        ],
+    );
+    if let Some(e) = settings_error {
+        defmt::warn!("settings: {}; defaults apply", e);
+    }
+    // The logged and processed magnetometer reading is the calibrated one (the spec's
+    // body-frame field), so a replay needs no calibration of its own.
+    let mag_cal = settings.calibration.mag;
+    match log.sd_state() {
+        SdState::Logging(n) => defmt::info!("SD card: logging to session {=u16}", n),
+        SdState::NoCard => defmt::warn!("SD card: none inserted, log on UART only"),
+        SdState::Failed(e) => defmt::error!("SD card: {}", e),
     }
 
     // Antenna ADC on SPI2, mode 1.
@@ -528,7 +619,7 @@ fn main() -> ! {
     }
 
     // The application in SRAM.
-    let cfg = PROFILE.app_config(earth, PROFILE.defaults.step_length_m);
+    let cfg = PROFILE.app_config(earth, step_length_m);
     // SAFETY: the only reference ever taken to RECEIVER, here, once, before any interrupt
     // that could run is enabled; no interrupt touches it.
     let slot = unsafe { &mut *core::ptr::addr_of_mut!(RECEIVER) };
@@ -536,7 +627,7 @@ fn main() -> ! {
         fatal("default configuration refused");
     };
     // The nominal calibration of the design until the unit's bench calibration is stored.
-    let fe_cfg = PROFILE.frontend_config(&PROFILE.analog.nominal);
+    let fe_cfg = PROFILE.frontend_config(&settings.calibration.antenna_or(&PROFILE.analog.nominal));
     let rate = fe_cfg.sample_rate_hz;
     let Ok(new_frontend) = Frontend::new(fe_cfg) else {
         fatal("front-end configuration refused");
@@ -554,7 +645,8 @@ fn main() -> ! {
     let mut mark = MarkButton::new(gpioc.pc6.into_pull_up_input());
     // The sound button: the same debounced press, on D12.
     let mut sound_button = MarkButton::new(gpioc.pc2.into_pull_up_input());
-    let mut muted = !SOUND_ON;
+    // Volume steps are not wired to the buzzer yet (50 % duty): 0 mutes.
+    let mut muted = !SOUND_ON || settings.volume == 0;
     let mut chirp_until_ms = 0u64;
     let mut drdy = gpioc.pc7.into_pull_up_input();
     drdy.make_interrupt_source(&mut syscfg);
@@ -594,7 +686,8 @@ fn main() -> ! {
     if let Some(f) = fault {
         defmt::error!("sensor fault at boot: {=str}", f.label());
     }
-    fault_led.set_state((fault.is_some() || !screen_ok).into());
+    let sd_fault = log.sd_state().fault_label().is_some();
+    fault_led.set_state((fault.is_some() || !screen_ok || sd_fault).into());
     // Ticks since the last one-second health window, and the counters at its start.
     let mut window_ticks = 0u32;
     let mut window_samples = SAMPLES.load(Ordering::Relaxed);
@@ -612,14 +705,9 @@ fn main() -> ! {
                         pulse_centre_us(pulse.start_sample, pulse.duration_s, rate)
                             + clock.offset_us(),
                     );
+                    log.pulse(t_pulse.secs_f64(), &pulse.measurement, pulse.src);
                     let model = match pulse.measurement {
                         PulseMeasurement::Field(h) => {
-                            let _ = session_log::write_pulse(
-                                &mut log,
-                                t_pulse.secs_f64(),
-                                &h,
-                                pulse.src,
-                            );
                             receiver.on_pulse(t_pulse, &h, pulse.src).ok()
                         }
                         // Overlap, clipping, truncation: held out of the estimators.
@@ -630,7 +718,7 @@ fn main() -> ! {
                     }
                     if let Some(model) = model.filter(|_| screen_ok) {
                         drawn = Some(clock.now());
-                        if !show(&mut screen, &model, fault, battery.state()) {
+                        if !show(&mut screen, &model, fault, battery.state(), log.sd_state()) {
                             defmt::warn!("display write failed");
                         }
                     }
@@ -650,10 +738,17 @@ fn main() -> ! {
                     SAMPLES.load(Ordering::Relaxed),
                     FRAME_ERRORS.load(Ordering::Relaxed),
                 );
-                sensors.adc_window(
-                    n.wrapping_sub(window_samples),
-                    e.wrapping_sub(window_errors),
-                );
+                let failed = e.wrapping_sub(window_errors);
+                sensors.adc_window(n.wrapping_sub(window_samples), failed);
+                if failed > 0 {
+                    let count = Detail::Int(i64::from(failed));
+                    log.event(
+                        log_t(&clock),
+                        "read_error",
+                        Some("adc"),
+                        &[("count", count)],
+                    );
+                }
                 (window_samples, window_errors) = (n, e);
                 let raw = mcu_adc.convert(&vbat_pin, SampleTime::Cycles_480);
                 let was_low = battery.state().is_some_and(|b| b.low);
@@ -669,6 +764,7 @@ fn main() -> ! {
             // The mark button, polled at the IMU tick (debounced over 3 ticks).
             let mut redraw = false;
             if mark.poll() {
+                log.event(log_t(&clock), "mark", None, &[]);
                 match receiver.mark() {
                     Ok(n) => defmt::info!("victim {=u8} marked", n),
                     Err(_) => defmt::info!("mark: no victim to mark"),
@@ -684,10 +780,22 @@ fn main() -> ! {
                     Some(f) => defmt::error!("sensor fault: {=str}", f.label()),
                     None => defmt::info!("sensor fault cleared"),
                 }
+                let why = now_fault.map_or("cleared", Fault::label);
+                log.event(log_t(&clock), "fault", Some(why), &[]);
                 fault = now_fault;
                 redraw = true;
             }
-            fault_led.set_state((fault.is_some() || !screen_ok).into());
+            // The SD card: flushed when due; a failure shows and is reported.
+            let (sd_changed, errors) = log.tick(log_t(&clock), ms_clock.now_ms(DWT::cycle_count()));
+            if let Some(state) = sd_changed {
+                defmt::error!("SD card: {}", state);
+                redraw = true;
+            }
+            if let Some(e) = errors {
+                defmt::warn!("session log errors: {}", e);
+            }
+            let sd_fault = log.sd_state().fault_label().is_some();
+            fault_led.set_state((fault.is_some() || !screen_ok || sd_fault).into());
             // Pulses redraw the screen; without them it is redrawn at least every
             // REDRAW_MAX_US, so that "NO SIGNAL" and the arrow to a silent victim (carried
             // over the walk) show. Not at every tick: a flush holds the shared I2C bus
@@ -697,7 +805,7 @@ fn main() -> ! {
             {
                 drawn = Some(t);
                 shown = receiver.display_model();
-                if screen_ok && !show(&mut screen, &shown, fault, battery.state()) {
+                if screen_ok && !show(&mut screen, &shown, fault, battery.state(), log.sd_state()) {
                     defmt::warn!("display write failed");
                 }
             }
@@ -738,20 +846,16 @@ fn main() -> ! {
                 last_imu_t = Some(t);
                 match imu.read() {
                     Ok(r) => {
-                        let _ = session_log::write_imu(
-                            &mut log,
-                            t.secs_f64(),
-                            &r.acc,
-                            &r.gyr,
-                            Some(&r.mag),
-                        );
-                        if receiver.on_imu(t, &r.acc, &r.gyr, Some(&r.mag)).is_err() {
+                        let mag = mag_cal.map_or(r.mag, |c| c.apply(&r.mag));
+                        log.imu(t.secs_f64(), &r.acc, &r.gyr, Some(&mag));
+                        if receiver.on_imu(t, &r.acc, &r.gyr, Some(&mag)).is_err() {
                             defmt::warn!("IMU sample refused");
                         }
                         sensors.imu_read(true);
                     }
                     Err(_) => {
                         defmt::warn!("IMU read failed");
+                        log.event(t.secs_f64(), "read_error", Some("imu"), &[]);
                         sensors.imu_read(false);
                     }
                 }
@@ -778,6 +882,13 @@ fn main() -> ! {
         }
         let dropped = DROPPED.load(Ordering::Relaxed);
         if dropped != 0 {
+            let count = Detail::Int(i64::from(dropped));
+            log.event(
+                log_t(&clock),
+                "overrun",
+                Some("adc_queue"),
+                &[("count", count)],
+            );
             defmt::warn!(
                 "{=u32} ADC samples dropped of {=u32}",
                 dropped,

@@ -16,6 +16,11 @@
 //! - **IMU**: it did not come up (at boot or after a bus clear), or [`IMU_FAIL_RUN`] reads
 //!   in a row failed.
 //!
+//! - **SD card** (not a sensor: the search goes on without it, so no fault box and no
+//!   fault tone): no card in the slot, or the card failed at boot or while writing
+//!   ([`crate::board::sd_log::SdState`]); its word ("NO SD", "SD ERR") goes in an inverted
+//!   box on the bottom line ([`draw_sd_mark`]), and the fault LED is lit.
+//!
 //! The battery: the Feather divides BAT by two (2 × 100 kΩ) into PA3; [`Battery`] turns
 //! the MCU ADC's reading into volts, smooths it, maps it to a charge estimate on a
 //! typical LiPo discharge curve ([`LIPO_CURVE`]) and raises a low-battery warning with
@@ -296,6 +301,37 @@ where
     Ok(())
 }
 
+/// Where the SD card's word goes: the bottom line, right of the battery's "LOW", left
+/// of the uncertainty text (x 66).
+pub const SD_MARK: Rectangle = Rectangle::new(Point::new(34, 54), Size::new(31, 10));
+
+/// Draws the SD card's word (`SdState::fault_label`) in an inverted box at [`SD_MARK`];
+/// nothing when `label` is `None` (logging). Labels longer than five characters are cut.
+pub fn draw_sd_mark<D>(label: Option<&str>, target: &mut D) -> Result<(), D::Error>
+where
+    D: DrawTarget<Color = BinaryColor>,
+{
+    let Some(label) = label else {
+        return Ok(());
+    };
+    let label = label.get(..5).unwrap_or(label);
+    SD_MARK
+        .into_styled(PrimitiveStyle::with_fill(BinaryColor::On))
+        .draw(target)?;
+    let inverted = MonoTextStyleBuilder::new()
+        .font(&FONT_6X10)
+        .text_color(BinaryColor::Off)
+        .build();
+    Text::with_baseline(
+        label,
+        SD_MARK.top_left + Point::new(1, 0),
+        inverted,
+        Baseline::Top,
+    )
+    .draw(target)?;
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -466,5 +502,34 @@ mod tests {
             text.points()
                 .all(|p| empty.pixel(p) != Some(BinaryColor::On))
         );
+    }
+
+    #[test]
+    fn the_sd_mark_is_drawn_only_when_not_logging_and_stays_in_its_box() {
+        use crate::board::sd_log::{SdError, SdState};
+        let screen = Rectangle::new(Point::zero(), Size::new(128, 64));
+        let mut f = Frame::new();
+        draw_sd_mark(SdState::Logging(3).fault_label(), &mut f).unwrap();
+        assert!(screen.points().all(|p| f.pixel(p) != Some(BinaryColor::On)));
+        for state in [SdState::NoCard, SdState::Failed(SdError::Card)] {
+            let mut f = Frame::new();
+            draw_sd_mark(state.fault_label(), &mut f).unwrap();
+            let lit_outside = screen
+                .points()
+                .filter(|p| !SD_MARK.contains(*p))
+                .any(|p| f.pixel(p) == Some(BinaryColor::On));
+            assert!(!lit_outside, "{state:?} drawn outside its box");
+            // Inverted: the box is mostly lit, the word's pixels dark.
+            let dark = SD_MARK
+                .points()
+                .filter(|p| f.pixel(*p) == Some(BinaryColor::Off))
+                .count();
+            assert!(dark > 20, "{state:?}: no word in the box");
+        }
+        // Clear of the battery's "LOW" (ends at x 33) and the uncertainty text (x 66).
+        const {
+            assert!(SD_MARK.top_left.x > 15 + 3 * 6);
+            assert!(SD_MARK.top_left.x + SD_MARK.size.width as i32 <= display::UNCERTAINTY_AT.x);
+        }
     }
 }

@@ -23,10 +23,14 @@
 //! | battery voltage, ½ of BAT through the Feather's 2 × 100 kΩ divider | — (on board) | PA3 | ADC1 IN3 |
 //! | buzzer (passive piezo to ground), guidance tones | D9 | PB8 | TIM4 CH3 PWM (AF2) |
 //! | sound button (to ground, internal pull-up): mutes and unmutes the tones | D12 | PC2 | GPIO input |
+//! | microSD (session log): data 0–3 | — (on board) | PC8–PC11 | SDIO D0–D3 (AF12) |
+//! | microSD: clock | — (on board) | PC12 | SDIO CK |
+//! | microSD: command | — (on board) | PD2 | SDIO CMD |
+//! | microSD: card detect (switch to ground, internal pull-up, low = card in) | — (on board) | PB12 | GPIO input |
 //!
-//! Not used and kept free: D8/PC0 (NeoPixel), the 2 MB
-//! SPI flash (PB3/PB4/PB5, CS PA15), the microSD slot on SDIO (PC8–PC12, PD2; card detect
-//! **PB12**, which is why the ADC's chip select is not there: PB12 is not on the header).
+//! Not used and kept free: D8/PC0 (NeoPixel), the 2 MB SPI flash (PB3/PB4/PB5, CS PA15).
+//! The card detect is **PB12**, which is why the ADC's chip select is not there: PB12 is
+//! not on the header.
 
 /// An MCU pin: port letter and number, e.g. `P('B', 12)` for PB12.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -95,7 +99,7 @@ pub const FEATHER_ON_BOARD: [(&str, P); 13] = [
 ];
 
 /// The receiver's pins (the module table; the board binary binds exactly these).
-pub const ASSIGNMENTS: [Assignment; 13] = [
+pub const ASSIGNMENTS: [Assignment; 20] = [
     a("antenna ADC SCK", P('B', 13), Site::Header("SCK")),
     a("antenna ADC MISO", P('B', 14), Site::Header("MISO")),
     a("antenna ADC MOSI", P('B', 15), Site::Header("MOSI")),
@@ -109,7 +113,17 @@ pub const ASSIGNMENTS: [Assignment; 13] = [
     a("battery divider", BATTERY, Site::OnBoard("V_DIV")),
     a("buzzer", P('B', 8), Site::Header("D9")),
     a("sound button", P('C', 2), Site::Header("D12")),
+    a("microSD D0", P('C', 8), Site::OnBoard("SDIO_D0")),
+    a("microSD D1", P('C', 9), Site::OnBoard("SDIO_D1")),
+    a("microSD D2", P('C', 10), Site::OnBoard("SDIO_D2")),
+    a("microSD D3", P('C', 11), Site::OnBoard("SDIO_D3")),
+    a("microSD CLK", P('C', 12), Site::OnBoard("SDIO_CLK")),
+    a("microSD CMD", P('D', 2), Site::OnBoard("SDIO_CMD")),
+    a("microSD card detect", SD_DETECT, Site::OnBoard("SD_DETECT")),
 ];
+
+/// The microSD slot's card-detect switch (low with a card in).
+pub const SD_DETECT: P = P('B', 12);
 
 /// The antenna ADC's chip select (D10).
 pub const ADC_CS: P = P('B', 9);

@@ -325,6 +325,91 @@ impl<D: BlockDevice> core::fmt::Write for SdLog<D> {
     }
 }
 
+/// What the SD log is doing, as the board shows and logs it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum SdState {
+    /// Writing session file number .0.
+    Logging(u16),
+    /// No card in the slot (card detect): nothing is written, by the user's choice.
+    NoCard,
+    /// The card is there but not writing: at boot (mount, no FAT volume, no free name) or
+    /// since a write failed.
+    Failed(SdError),
+}
+
+impl SdState {
+    /// A short word for the display and the log (`None` while logging).
+    pub fn fault_label(self) -> Option<&'static str> {
+        match self {
+            SdState::Logging(_) => None,
+            SdState::NoCard => Some("NO SD"),
+            SdState::Failed(_) => Some("SD ERR"),
+        }
+    }
+}
+
+/// The SD side of the board's session log: the open session file, or why there is none.
+/// As a `fmt::Write` it fails once the card has failed (so every record lost is counted
+/// by the recorder) and takes records silently when no card is inserted (the state says
+/// so on the display).
+pub struct SdSink<D: BlockDevice> {
+    log: Option<SdLog<D>>,
+    state: SdState,
+}
+
+impl<D: BlockDevice> SdSink<D> {
+    /// The sink after the boot's mount attempt: `None` when no card is inserted.
+    pub fn new(mounted: Option<Result<SdLog<D>, SdError>>) -> Self {
+        match mounted {
+            None => Self {
+                log: None,
+                state: SdState::NoCard,
+            },
+            Some(Ok(log)) => Self {
+                state: SdState::Logging(log.number()),
+                log: Some(log),
+            },
+            Some(Err(e)) => Self {
+                log: None,
+                state: SdState::Failed(e),
+            },
+        }
+    }
+
+    /// The current state.
+    pub fn state(&self) -> SdState {
+        self.state
+    }
+
+    /// The open log's counts (none without a log).
+    pub fn stats(&self) -> Option<SdStats> {
+        self.log.as_ref().map(SdLog::stats)
+    }
+
+    /// Flushes when due ([`SdLog::poll`]); returns the new state when it changed.
+    pub fn poll(&mut self, now_ms: u64) -> Option<SdState> {
+        let log = self.log.as_mut()?;
+        match log.poll(now_ms) {
+            Err(e) if self.state != SdState::Failed(e) => {
+                self.state = SdState::Failed(e);
+                Some(self.state)
+            }
+            _ => None,
+        }
+    }
+}
+
+impl<D: BlockDevice> core::fmt::Write for SdSink<D> {
+    fn write_str(&mut self, s: &str) -> core::fmt::Result {
+        match (self.log.as_mut(), self.state) {
+            (Some(log), _) => log.write_str(s),
+            (None, SdState::NoCard) => Ok(()),
+            (None, _) => Err(core::fmt::Error),
+        }
+    }
+}
+
 /// Why the [`RamCard`] refused a transfer.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

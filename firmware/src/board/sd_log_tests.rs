@@ -332,3 +332,38 @@ fn card_errors_stop_the_log_and_are_counted() {
     );
     assert_eq!(rec.writer().poll(10_000).err(), first);
 }
+
+#[test]
+fn the_sink_reports_its_state_and_fails_only_with_a_failed_card() {
+    use core::fmt::Write;
+    let mut none: SdSink<RamCard<'_>> = SdSink::new(None);
+    assert_eq!(none.state(), SdState::NoCard);
+    assert_eq!(none.state().fault_label(), Some("NO SD"));
+    none.write_str("taken, nowhere to go\n").unwrap();
+    assert_eq!(none.poll(10_000), None);
+
+    let mut blank = vec![0u8; 1 << 20];
+    let refused = SdLog::open(RamCard::new(&mut blank), 0).map_err(|(e, _)| e);
+    let mut bad = SdSink::new(Some(refused));
+    assert_eq!(bad.state(), SdState::Failed(SdError::Volume));
+    assert!(bad.write_str("x").is_err());
+
+    let mut img = formatted(4, fatfs::FatType::Fat16);
+    let card = RamCard::new(&mut img);
+    card.fail_at(3);
+    let mut ok = SdSink::new(Some(SdLog::open(card, 0).map_err(|(e, _)| e)));
+    assert_eq!(ok.state(), SdState::Logging(1));
+    assert_eq!(ok.state().fault_label(), None);
+    let mut changed = Vec::new();
+    for tick in 0..200u64 {
+        let _ = ok.write_str("{\"type\":\"imu\",\"t\":0}\n");
+        if let Some(s) = ok.poll(tick * 10) {
+            changed.push(s);
+        }
+    }
+    // The failure is reported once, then kept.
+    assert_eq!(changed.len(), 1, "{changed:?}");
+    assert!(matches!(changed[0], SdState::Failed(_)));
+    assert!(ok.write_str("x").is_err());
+    assert!(ok.stats().unwrap().lost_bytes > 0);
+}

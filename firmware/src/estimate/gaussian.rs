@@ -146,6 +146,8 @@ pub(crate) struct StepInput {
     /// Mean reversion `(ρ, q)` of the scale over the interval (`SogConfig::scale_tau_s`),
     /// applied to each component before the step; `None` for a constant scale.
     pub scale_rev: Option<(f32, f32)>,
+    /// The pulse's sign is known (`SogConfig::sign_ambiguous` false): only `+z` is tried.
+    pub signed: bool,
 }
 
 impl StepInput {
@@ -160,6 +162,7 @@ impl StepInput {
             a: Vec3::zeros(),
             qa: None,
             scale_rev: None,
+            signed: false,
         }
     }
 
@@ -334,7 +337,8 @@ fn step_component_joseph(
     lin: Option<&LinPoint>,
 ) -> Result<(StateVec, StateMat, Innovation), ComponentFailure> {
     let q = inp.q_for(x);
-    let (x1, p1, inn) = step_gaussian_joseph_at(x, p, &inp.u, &inp.a, &q, &inp.z, inp.r_var, lin)?;
+    let (x1, p1, inn) =
+        step_gaussian_joseph_at(x, p, &inp.u, &inp.a, &q, &inp.z, inp.r_var, lin, inp.signed)?;
     match attitude {
         Some((z, r)) => attitude_update_joseph(&x1, &p1, z, r).map(|(x2, p2)| (x2, p2, inn)),
         None => Ok((x1, p1, inn)),
@@ -365,8 +369,11 @@ pub(crate) fn gate_d2(
     let l = cholesky3(&s).map_err(|_| ComponentFailure::NotPositiveDefinite)?;
     let l_inv = lower_inverse3(&l);
     let d2_pos = mahalanobis2(&l_inv, &(inp.z - meas.h));
-    let d2_neg = mahalanobis2(&l_inv, &(-inp.z - meas.h));
-    let d2 = d2_pos.min(d2_neg);
+    let d2 = if inp.signed {
+        d2_pos
+    } else {
+        d2_pos.min(mahalanobis2(&l_inv, &(-inp.z - meas.h)))
+    };
     if d2.is_nan() {
         return Err(ComponentFailure::NonFinite);
     }
@@ -415,11 +422,16 @@ fn sub_outer<const C: usize>(a: &StateMat, v: &SMatrix<f32, NX, C>) -> StateMat 
 }
 
 /// Sign choice and log-likelihood of a pulse (see [`step_gaussian`]).
-fn innovation(l: &Mat3, l_inv: &Mat3, z: &Vec3, h: &Vec3) -> (Vec3, Innovation) {
+fn innovation(l: &Mat3, l_inv: &Mat3, z: &Vec3, h: &Vec3, signed: bool) -> (Vec3, Innovation) {
     let nu_pos = z - h;
     let nu_neg = -z - h;
     let d2_pos = mahalanobis2(l_inv, &nu_pos);
-    let d2_neg = mahalanobis2(l_inv, &nu_neg);
+    // A known sign: `−z` is no hypothesis (an infinite distance drops it from the sum).
+    let d2_neg = if signed {
+        f32::INFINITY
+    } else {
+        mahalanobis2(l_inv, &nu_neg)
+    };
     let (nu, d2, flipped) = if d2_neg < d2_pos {
         (nu_neg, d2_neg, true)
     } else {
@@ -502,7 +514,7 @@ pub(crate) fn step_gaussian(
     }
     let l = cholesky3(&s).map_err(|_| ComponentFailure::NotPositiveDefinite)?;
     let l_inv = lower_inverse3(&l);
-    let (nu, inn) = innovation(&l, &l_inv, &inp.z, &meas.h);
+    let (nu, inn) = innovation(&l, &l_inv, &inp.z, &meas.h, inp.signed);
 
     // EKF update of the augmented state (Algorithm 1): V = W L⁻ᵀ, K = V L⁻¹.
     let va: SMatrix<f32, NX, 3> = wa * l_inv.transpose();
@@ -643,7 +655,7 @@ fn iterate_update(
     let u = &inp.u;
     let (h0, ha0, hb0) = measure_aug(inp, x, u, &inp.rb)?;
     let mut lin = factor(inp, p, q, h0, ha0, hb0)?;
-    let (mut nu, mut inn) = innovation(&lin.l, &lin.l_inv, &inp.z, &lin.h);
+    let (mut nu, mut inn) = innovation(&lin.l, &lin.l_inv, &inp.z, &lin.h, inp.signed);
     let zs = if inn.flipped { -inp.z } else { inp.z };
     let mut x_post = x + lin.va * (lin.l_inv * nu);
     let mut u_post = u + lin.vb * (lin.l_inv * nu);
@@ -673,7 +685,7 @@ fn iterate_update(
         nu = zs - lin.h;
         x_post = x + lin.va * (lin.l_inv * nu);
         u_post = u + lin.vb * (lin.l_inv * nu);
-        inn = final_innovation(&lin.l, &lin.l_inv, &zs, &lin.h, inn.flipped);
+        inn = final_innovation(&lin.l, &lin.l_inv, &zs, &lin.h, inn.flipped, inp.signed);
         if moved {
             break;
         }
@@ -755,8 +767,15 @@ pub(crate) struct LinPoint {
 
 /// [`Innovation`] of the final linearization: `d2` of the sign used (`zs`), the
 /// two-sign log-likelihood (IROS eq. 17) around the linearized prediction `h`.
-fn final_innovation(l: &Mat3, l_inv: &Mat3, zs: &Vec3, h: &Vec3, flipped: bool) -> Innovation {
-    let (_, both) = innovation(l, l_inv, zs, h);
+fn final_innovation(
+    l: &Mat3,
+    l_inv: &Mat3,
+    zs: &Vec3,
+    h: &Vec3,
+    flipped: bool,
+    signed: bool,
+) -> Innovation {
+    let (_, both) = innovation(l, l_inv, zs, h, signed);
     Innovation {
         d2: mahalanobis2(l_inv, &(zs - h)),
         log_lik: both.log_lik,
@@ -778,7 +797,7 @@ pub(crate) fn step_gaussian_joseph(
     z: &Vec3,
     r_var: f32,
 ) -> Result<(StateVec, StateMat, Innovation), ComponentFailure> {
-    step_gaussian_joseph_at(x, p, u, a, q, z, r_var, None)
+    step_gaussian_joseph_at(x, p, u, a, q, z, r_var, None, false)
 }
 
 /// [`step_gaussian_joseph`] with the measurement linearized at `lin` (the iterated
@@ -794,6 +813,7 @@ pub(crate) fn step_gaussian_joseph_at(
     z: &Vec3,
     r_var: f32,
     lin: Option<&LinPoint>,
+    signed: bool,
 ) -> Result<(StateVec, StateMat, Innovation), ComponentFailure> {
     let (lx, lu) = lin.map_or((x, u), |l| (&l.x, &l.u));
     let prior = compose_abs(lx, lu, a);
@@ -811,11 +831,14 @@ pub(crate) fn step_gaussian_joseph_at(
     let l_inv = lower_inverse3(&l);
     let s_inv = l_inv.transpose() * l_inv;
     let (nu, inn) = match lin {
-        None => innovation(&l, &l_inv, z, &meas.h),
+        None => innovation(&l, &l_inv, z, &meas.h, signed),
         Some(lp) => {
             let h = meas.h + ha * state_diff(x, lx) + hb * (u - lu);
             let zs = if lp.flipped { -z } else { *z };
-            (zs - h, final_innovation(&l, &l_inv, &zs, &h, lp.flipped))
+            (
+                zs - h,
+                final_innovation(&l, &l_inv, &zs, &h, lp.flipped, signed),
+            )
         }
     };
 
@@ -1316,6 +1339,33 @@ mod tests {
         let (_, _, inn2) = step_gaussian(&StepInput::new(&u, &q, &(-z), 1e-6), &x, &p0).unwrap();
         assert!(inn2.flipped);
         assert!((inn2.log_lik - inn.log_lik).abs() < 1e-3 * inn.log_lik.abs().max(1.0));
+        // A known sign (`SogConfig::sign_ambiguous` false): `−z` is taken as measured, a
+        // pulse the prior cannot explain, and every path (short form, iterated, gate,
+        // Joseph) agrees; `+z` is as likely as with both signs (the `−z` hypothesis was
+        // negligible here) and gives the same update.
+        let mut signed = StepInput::new(&u, &q, &(-z), 1e-6);
+        signed.signed = true;
+        let (x3, _, inn3) = step_gaussian(&signed, &x, &p0).unwrap();
+        assert!(!inn3.flipped);
+        assert!(
+            inn3.d2 > 100.0 * inn2.d2.max(1.0),
+            "{} vs {}",
+            inn3.d2,
+            inn2.d2
+        );
+        assert!(inn3.log_lik < inn2.log_lik - 10.0);
+        assert!((gate_d2(&signed, &x, &p0).unwrap() - inn3.d2).abs() <= 1e-4 * inn3.d2);
+        assert!((measure(&x3).unwrap().h - z).norm() > (measure(&x1).unwrap().h - z).norm());
+        let (_, _, inn4, _) = step_gaussian_iterated(&signed, &x, &p0, 2).unwrap();
+        assert!(!inn4.flipped && inn4.d2 > 100.0);
+        let (_, _, inn5) =
+            step_gaussian_joseph_at(&x, &p0, &u, &Vec3::zeros(), &q, &(-z), 1e-6, None, true)
+                .unwrap();
+        assert!(!inn5.flipped && (inn5.d2 - inn3.d2).abs() <= 1e-3 * inn3.d2);
+        signed.z = z;
+        let (x6, _, inn6) = step_gaussian(&signed, &x, &p0).unwrap();
+        assert_eq!((x6, inn6.d2), (x1, inn.d2));
+        assert!((inn6.log_lik - inn.log_lik).abs() < 1e-3 * inn.log_lik.abs().max(1.0));
     }
 
     // ---- iterated update (IEKF) ------------------------------------------------------

@@ -272,6 +272,10 @@ pub struct SogConfig {
     pub sigma_bkg: f32,
     /// Sensor noise proportional to |H|, ICRA 2006 eq. 10.
     pub k_sen: f32,
+    /// Whether a pulse's overall sign is unknown (the front end's phase reference is
+    /// arbitrary): then every update tries `+z` and `−z` (IROS eq. 17). `false` when the
+    /// receiver knows the sign: only `+z` is used.
+    pub sign_ambiguous: bool,
     /// Standard deviation of the walk-long scale factor multiplying the dead-reckoned
     /// translation: ≈ 0.02 with a calibrated step length, ≈ 0.10 without.
     pub scale_sigma: f32,
@@ -359,6 +363,7 @@ impl Default for SogConfig {
             receiver_height: 1.0,
             sigma_bkg: 2.59e-9,
             k_sen: 0.03,
+            sign_ambiguous: true,
             scale_sigma: SCALE_SIGMA_CALIBRATED,
             h_saturation: 1.0,
             init_snr: 10.0,

@@ -697,7 +697,8 @@ pub(crate) fn step_input(
     } else {
         (motion.cov + motion.cov.transpose()) * 0.5
     };
-    let inp = StepInput::new(&u, &q, z, r_var);
+    let mut inp = StepInput::new(&u, &q, z, r_var);
+    inp.signed = !config.sign_ambiguous;
     if motion.has_absolute() {
         // With a known trajectory the absolute part is exact too.
         let qa = if exact {
@@ -846,6 +847,35 @@ mod tests {
         assert!(max_h <= 0.5, "max {max_h}");
         assert!(med_3 <= 0.25, "3-D median {med_3}");
         assert!(cons >= 0.9, "consistency {cons}");
+    }
+
+    #[test]
+    fn a_known_pulse_sign_is_honoured_and_stays_consistent() {
+        // The same runs as the open-loop test, the pulses with their true sign.
+        let config = SogConfig {
+            sign_ambiguous: false,
+            ..SogConfig::default()
+        };
+        let o = runs((200..212).map(Setup::robocentric), config);
+        let (med_h, max_h, med_3, cons) = summary("robocentric open loop, sign known", &o);
+        assert!(med_h <= 0.2, "median {med_h}");
+        assert!(max_h <= 0.5, "max {max_h}");
+        assert!(med_3 <= 0.25, "3-D median {med_3}");
+        assert!(cons >= 0.9, "consistency {cons}");
+        // Honoured: the same filter fed pulses of random sign (the scenario generated as
+        // sign-ambiguous) cannot explain half of them, where the sign-ambiguous filter
+        // above would not notice the difference.
+        let wrong: std::vec::Vec<Outcome> = (200..212)
+            .map(|seed| {
+                let mut f = DefaultSog::new(config).unwrap();
+                run(&Setup::robocentric(seed), &mut f, &SogConfig::default())
+            })
+            .collect();
+        let (w_med_h, _, _, w_cons) = summary("sign known, pulses of random sign", &wrong);
+        assert!(
+            w_med_h > 2.0 * med_h || w_cons < cons - 0.2,
+            "random signs fit as well: median {w_med_h}, consistency {w_cons}"
+        );
     }
 
     #[test]

@@ -162,7 +162,13 @@ pub(crate) fn run<E: Estimator>(setup: &Setup, estimator: &mut E, config: &SogCo
         let r_wr = rotation_from_rpy(&rpy);
         let h_w = field(&(pos - victim), &moment).unwrap_or_else(|_| Vec3::zeros());
         let h_r = r_wr.transpose() * h_w;
-        let sign = if rng.random::<bool>() { 1.0 } else { -1.0 };
+        // The same draw either way: a known sign keeps the run's noise otherwise equal.
+        let keep = rng.random::<bool>();
+        let sign = if keep || !config.sign_ambiguous {
+            1.0
+        } else {
+            -1.0
+        };
         let h_meas = (h_r + gauss3(&mut rng, noise_sigma(&h_r))) * sign;
         let attitude = if setup.known_trajectory {
             Attitude {

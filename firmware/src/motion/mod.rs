@@ -300,6 +300,11 @@ impl Motion {
         gyr: &Vec3,
         mag: Option<&Vec3>,
     ) -> Result<(), MotionError> {
+        // A magnetometer axis at or beyond full scale loses this sample's heading aid
+        // only: the accelerometer and gyro readings are still good (the replay adapter
+        // does the same, so the board and a replay of its log agree).
+        let range = self.cfg.mag_range_ut;
+        let mag = mag.filter(|m| !m.iter().any(|x| x.is_finite() && libm::fabsf(*x) >= range));
         self.check(t, acc, gyr, mag)?;
         let mut next = self.clone();
         next.apply(t, acc, gyr, mag);
@@ -321,10 +326,8 @@ impl Motion {
             return Err(MotionError::NonFinite);
         }
         let within = |v: &Vec3, r: f32| v.iter().all(|x| libm::fabsf(*x) < r);
-        if !within(acc, self.cfg.acc_range_m_s2)
-            || !within(gyr, self.cfg.gyr_range_rad_s)
-            || !mag.is_none_or(|m| within(m, self.cfg.mag_range_ut))
-        {
+        // A saturated magnetometer was already dropped by `on_imu_sample`.
+        if !within(acc, self.cfg.acc_range_m_s2) || !within(gyr, self.cfg.gyr_range_rad_s) {
             return Err(MotionError::Saturated);
         }
         if let Some(r) = &self.run {
@@ -743,6 +746,33 @@ mod tests {
                 .unwrap();
         }
         m
+    }
+
+    #[test]
+    fn a_saturated_magnetometer_drops_the_heading_aid_only() {
+        let (acc, mag) = level_sample(0.3);
+        let gyr = Vec3::new(0.0, 0.0, 0.2);
+        for axis in 0..3 {
+            let mut with = running();
+            let mut without = running();
+            let mut sat = mag;
+            sat[axis] = if axis == 1 { -4900.0 } else { 6000.0 };
+            for k in 1..=20 {
+                let t = 0.5 + 0.01 * k as f32;
+                with.on_imu_sample(t, &acc, &gyr, Some(&sat)).unwrap();
+                without.on_imu_sample(t, &acc, &gyr, None).unwrap();
+            }
+            // Fed as a sample without magnetometer: acc and gyro still move the state.
+            assert_eq!(with, without, "axis {axis}");
+            assert_ne!(with, running());
+        }
+        // A non-finite magnetometer reading is still refused.
+        let mut m = running();
+        let nan = Vec3::new(0.0, f32::NAN, 0.0);
+        assert_eq!(
+            m.on_imu_sample(0.51, &acc, &gyr, Some(&nan)),
+            Err(MotionError::NonFinite)
+        );
     }
 
     #[test]

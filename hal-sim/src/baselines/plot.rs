@@ -1,15 +1,15 @@
-//! Line plots of the baselines' reports (PNG): plotters draws the lines on a bitmap, the
-//! text is drawn with embedded-graphics' mono fonts (no font stack on the host).
-use crate::demo::{Canvas, write_png};
+//! Line plots of the baselines' reports (PNG) in the figures' common style
+//! ([`crate::plot`]: embedded font, named axes with units, ticks, legend), on linear or
+//! logarithmic axes (errors that span decades are shown on a log axis).
+use crate::demo::write_png;
+use crate::plot::{self, FONT};
 use anyhow::Result;
-use embedded_graphics::mono_font::MonoTextStyle;
-use embedded_graphics::mono_font::ascii::{FONT_6X10, FONT_9X15};
-use embedded_graphics::pixelcolor::Rgb888;
-use embedded_graphics::prelude::*;
-use embedded_graphics::text::{Baseline, Text};
+use plotters::coord::Shift;
+use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
 use plotters::prelude::*;
 use std::path::Path;
 
+/// Series colours, in order.
 pub(crate) const COLOURS: [RGBColor; 8] = [
     RGBColor(0, 90, 200),
     RGBColor(230, 120, 0),
@@ -23,133 +23,140 @@ pub(crate) const COLOURS: [RGBColor; 8] = [
 
 /// A named polyline.
 pub(crate) struct Series {
-    /// Legend text (ASCII).
+    /// Legend text.
     pub name: String,
     /// Line colour.
     pub colour: RGBColor,
-    /// Points `(x, y)` in axis units (clipped to the axes' ranges).
+    /// Points `(x, y)` in axis units (clamped to the axes' ranges; non-finite dropped).
     pub points: Vec<(f64, f64)>,
 }
 
-/// An axis: range, ticks `(value, label)` and title.
+/// An axis: range, scale and name with its unit.
 pub(crate) struct Axis {
-    /// Lowest and highest value shown.
+    /// Lowest and highest value shown (both > 0 on a log axis).
     pub range: (f64, f64),
-    /// Grid lines `(value, label)`.
-    pub ticks: Vec<(f64, String)>,
-    /// Axis title.
+    /// Logarithmic scale.
+    pub log: bool,
+    /// Axis name with its unit, e.g. "final error (m)".
     pub title: &'static str,
 }
 
-/// Ticks at the powers of ten `10^lo … 10^hi` of a log10 axis.
-pub(crate) fn log_ticks(lo: i32, hi: i32) -> Vec<(f64, String)> {
-    (lo..=hi)
-        .map(|e| (f64::from(e), format!("{}", 10f64.powi(e))))
-        .collect()
+/// Where the legend goes (the corner the curves leave free).
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum Legend {
+    /// Upper right corner.
+    UpperRight,
+    /// Lower right corner.
+    LowerRight,
 }
 
-fn pe(e: impl std::fmt::Debug) -> anyhow::Error {
-    anyhow::anyhow!("{e:?}")
+/// A tick label: integers plainly, small values with their significant digits.
+fn tick(v: f64) -> String {
+    if v.abs() >= 1.0 || v == 0.0 {
+        format!("{}", (v * 100.0).round() / 100.0)
+    } else {
+        let digits = (-v.abs().log10()).ceil() as usize + 1;
+        let s = format!("{v:.digits$}");
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    }
 }
 
-/// A line plot on linear axes, text drawn with embedded-graphics' mono fonts.
-pub(crate) fn plot(path: &Path, title: &str, x: &Axis, y: &Axis, series: &[Series]) -> Result<()> {
-    let (w, h) = (1100u32, 560u32);
+/// A line plot with a title, named axes with ticks and a legend at `legend`.
+pub(crate) fn plot(
+    path: &Path,
+    title: &str,
+    x: &Axis,
+    y: &Axis,
+    series: &[Series],
+    legend: Legend,
+) -> Result<()> {
+    plot::fonts();
+    let (w, h) = (1100u32, 620u32);
     let mut buf = vec![255u8; (w * h * 3) as usize];
-    let black = Rgb888::BLACK;
-    let mut labels: Vec<(String, Point, Rgb888)> = Vec::new();
     {
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
-        root.fill(&WHITE).map_err(pe)?;
-        let mut chart = ChartBuilder::on(&root)
-            .margin_top(40)
-            .margin_bottom(50)
-            .margin_left(70)
-            .margin_right(360)
-            .build_cartesian_2d(x.range.0..x.range.1, y.range.0..y.range.1)
-            .map_err(pe)?;
-        let grid = RGBColor(225, 225, 225);
+        root.fill(&WHITE).map_err(plot::err)?;
+        let root = root.titled(title, (FONT, 20)).map_err(plot::err)?;
         let (x0, x1, y0, y1) = (x.range.0, x.range.1, y.range.0, y.range.1);
-        for (v, l) in &x.ticks {
-            chart
-                .draw_series(LineSeries::new([(*v, y0), (*v, y1)], grid))
-                .map_err(pe)?;
-            let (px, py) = chart.backend_coord(&(*v, y0));
-            labels.push((
-                l.clone(),
-                Point::new(px - 3 * l.len() as i32, py + 6),
-                black,
-            ));
+        let p = Parts {
+            x,
+            y,
+            series,
+            legend,
+        };
+        match (x.log, y.log) {
+            (false, false) => draw(&root, x0..x1, y0..y1, &p)?,
+            (false, true) => draw(&root, x0..x1, (y0..y1).log_scale(), &p)?,
+            (true, false) => draw(&root, (x0..x1).log_scale(), y0..y1, &p)?,
+            (true, true) => draw(&root, (x0..x1).log_scale(), (y0..y1).log_scale(), &p)?,
         }
-        for (v, l) in &y.ticks {
-            chart
-                .draw_series(LineSeries::new([(x0, *v), (x1, *v)], grid))
-                .map_err(pe)?;
-            let (px, py) = chart.backend_coord(&(x0, *v));
-            labels.push((
-                l.clone(),
-                Point::new(px - 8 - 6 * l.len() as i32, py - 5),
-                black,
-            ));
-        }
-        chart
-            .draw_series(LineSeries::new(
-                [(x0, y0), (x1, y0), (x1, y1), (x0, y1), (x0, y0)],
-                BLACK,
-            ))
-            .map_err(pe)?;
-        for (i, s) in series.iter().enumerate() {
-            let clipped: Vec<(f64, f64)> = s
-                .points
-                .iter()
-                .map(|&(a, b)| (a.clamp(x0, x1), b.clamp(y0, y1)))
-                .collect();
-            chart
-                .draw_series(LineSeries::new(clipped, s.colour.stroke_width(2)))
-                .map_err(pe)?;
-            let ly = 50 + 22 * i as i32;
-            let lx = w as i32 - 350;
-            root.draw(&PathElement::new(
-                vec![(lx, ly + 5), (lx + 24, ly + 5)],
-                s.colour.stroke_width(3),
-            ))
-            .map_err(pe)?;
-            let c = s.colour;
-            labels.push((
-                s.name.clone(),
-                Point::new(lx + 30, ly),
-                Rgb888::new(c.0, c.1, c.2),
-            ));
-        }
-        let (px, py) = chart.backend_coord(&(0.5 * (x0 + x1), y0));
-        labels.push((
-            x.title.to_string(),
-            Point::new(px - 3 * x.title.len() as i32, py + 24),
-            black,
-        ));
-        let (px, py) = chart.backend_coord(&(x0, y1));
-        labels.push((y.title.to_string(), Point::new(px - 60, py - 16), black));
-    }
-    let mut canvas = Canvas {
-        buf: &mut buf,
-        w,
-        h,
-    };
-    let _ = Text::with_baseline(
-        title,
-        Point::new(70, 8),
-        MonoTextStyle::new(&FONT_9X15, black),
-        Baseline::Top,
-    )
-    .draw(&mut canvas);
-    for (text, p, c) in labels {
-        let _ = Text::with_baseline(&text, p, MonoTextStyle::new(&FONT_6X10, c), Baseline::Top)
-            .draw(&mut canvas);
+        root.present().map_err(plot::err)?;
     }
     write_png(path, w, h, &buf)
 }
 
-/// ASCII label for the plots (the mono font has no “–”).
-pub(crate) fn ascii(name: &str) -> String {
-    name.replace('–', "-")
+/// What [`draw`] draws.
+struct Parts<'a> {
+    x: &'a Axis,
+    y: &'a Axis,
+    series: &'a [Series],
+    legend: Legend,
+}
+
+fn draw<X, Y>(
+    root: &DrawingArea<BitMapBackend<'_>, Shift>,
+    xr: X,
+    yr: Y,
+    p: &Parts<'_>,
+) -> Result<()>
+where
+    X: AsRangedCoord<Value = f64>,
+    Y: AsRangedCoord<Value = f64>,
+    X::CoordDescType: ValueFormatter<f64>,
+    Y::CoordDescType: ValueFormatter<f64>,
+{
+    let mut chart = ChartBuilder::on(root)
+        .margin(15)
+        .x_label_area_size(50)
+        .y_label_area_size(70)
+        .build_cartesian_2d(xr, yr)
+        .map_err(plot::err)?;
+    plot::draw_axes(&mut chart, (p.x.title, p.y.title), &|v| tick(*v), &|v| {
+        tick(*v)
+    })?;
+    let clamp = |v: f64, (lo, hi): (f64, f64)| v.clamp(lo, hi);
+    for s in p.series {
+        let pts: Vec<(f64, f64)> = s
+            .points
+            .iter()
+            .filter(|(a, b)| a.is_finite() && b.is_finite())
+            .map(|&(a, b)| (clamp(a, p.x.range), clamp(b, p.y.range)))
+            .collect();
+        let c = s.colour;
+        chart
+            .draw_series(LineSeries::new(pts, c.stroke_width(2)))
+            .map_err(plot::err)?
+            .label(s.name.as_str())
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], c.stroke_width(3)));
+    }
+    let position = match p.legend {
+        Legend::UpperRight => SeriesLabelPosition::UpperRight,
+        Legend::LowerRight => SeriesLabelPosition::LowerRight,
+    };
+    plot::draw_legend_at(&mut chart, position)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tick_labels_are_short() {
+        assert_eq!(tick(0.01), "0.01");
+        assert_eq!(tick(0.1), "0.1");
+        assert_eq!(tick(1.0), "1");
+        assert_eq!(tick(100.0), "100");
+        assert_eq!(tick(0.5), "0.5");
+        assert_eq!(tick(0.25), "0.25");
+    }
 }

@@ -1,6 +1,6 @@
 //! `hal-sim baselines-report`: every [`Method`] on the same seeded scenarios, the papers'
 //! numbers beside ours, error-vs-time and final-error CDF plots (PNG).
-use super::plot::{Axis, COLOURS, Series, ascii, log_ticks, plot};
+use super::plot::{Axis, COLOURS, Legend, Series, plot};
 use super::{Method, MethodRuns, run_method};
 use crate::accuracy::stats;
 use anyhow::{Context, Result};
@@ -181,7 +181,7 @@ fn verdict(all: &[MethodRuns]) -> String {
 /// Markdown of the whole report.
 pub fn markdown(args: &Args, all: &[MethodRuns]) -> String {
     let mut s = format!(
-        "## Baselines beside the SOGs filter (`cargo run -p hal-sim --release -- baselines-report --runs {} --seed {} --out {}`)\n\n",
+        "## Baselines beside the SOGs filter (`nice -n 10 cargo run -p hal-sim --profile sim -- baselines-report --runs {} --seed {} --out {}`)\n\n",
         args.runs,
         args.seed,
         args.out.display()
@@ -192,7 +192,7 @@ pub fn markdown(args: &Args, all: &[MethodRuns]) -> String {
     );
     s.push_str("### Accuracy (final error: 3-D at the last pulse)\n\n");
     s.push_str(&accuracy_table(all));
-    s.push_str("\n¹ Closed loop only (DS has no estimate before it stands on the maximum): the horizontal error of the point it found, from the closed-loop rescues; a rescue that never found the maximum has no position (counted in \"> 1 m\").\n\nHost time per step: mean over the runs of the estimator's `step` on this PC (release build, runs in parallel on a shared 2-core machine with other jobs running: compare within one report, not across reports).\n\n");
+    s.push_str("\n¹ Closed loop only (DS has no estimate before it stands on the maximum): the horizontal error of the point it found, from the closed-loop rescues; a rescue that never found the maximum has no position (counted in \"> 1 m\").\n\nHost time per step: mean over the runs of the estimator's `step` on this PC (`sim` profile: release optimizations; runs in parallel on a shared 2-core machine with other jobs running: compare within one report, not across reports).\n\n");
     s.push_str("The papers' own numbers (final error max / mean / median over 100 tries, their simulations): IROS 2006 Table I — SOGs 0.66 / 0.23 / 0.21 m, RBPF 32.5 / 2.27 / 0.28 m; ICRA 2006 Table II — DS 2.62 / 0.52 / 0.42 m.\n\n");
     s.push_str("### Steps to find (closed loop, where the method guides)\n\n");
     s.push_str(&closed_loop_table(all));
@@ -214,7 +214,7 @@ pub fn markdown(args: &Args, all: &[MethodRuns]) -> String {
     s
 }
 
-/// Median error (log10) against the pulse index, per open-loop method.
+/// Median error against the pulse index (log scale), per open-loop method.
 fn error_vs_time(all: &[MethodRuns], path: &Path) -> Result<()> {
     let mut series = Vec::new();
     let mut kmax = 10usize;
@@ -244,36 +244,34 @@ fn error_vs_time(all: &[MethodRuns], path: &Path) -> Result<()> {
             }
             v.sort_by(f64::total_cmp);
             let med = v.get(v.len() / 2).copied().unwrap_or(f64::NAN);
-            pts.push(((k + 1) as f64, med.max(1e-3).log10()));
+            pts.push(((k + 1) as f64, med));
         }
         kmax = kmax.max(pts.len());
         series.push(Series {
-            name: ascii(r.method.name()),
+            name: r.method.name().to_string(),
             colour: COLOURS[i % COLOURS.len()],
             points: pts,
         });
     }
-    let xt = (0..=kmax / 10)
-        .map(|i| ((i * 10) as f64, format!("{}", i * 10)))
-        .collect();
     plot(
         path,
-        "Median 3-D error vs time (open loop, same scenarios)",
+        "Median 3-D error of the estimate against time (open loop, same scenarios)",
         &Axis {
             range: (0.0, kmax as f64),
-            ticks: xt,
-            title: "pulse (s)",
+            log: false,
+            title: "pulse index (one pulse per transmitter period, ≈ 1 s)",
         },
         &Axis {
-            range: (-2.0, 2.0),
-            ticks: log_ticks(-2, 2),
-            title: "error (m, log)",
+            range: (0.01, 300.0),
+            log: true,
+            title: "median 3-D error (m, log scale)",
         },
         &series,
+        Legend::UpperRight,
     )
 }
 
-/// CDF of the final errors (log10 x), per method, plus the SOGs receiver closed loop.
+/// CDF of the final errors (log x), per method, plus the SOGs receiver closed loop.
 fn cdf(all: &[MethodRuns], path: &Path) -> Result<()> {
     let mut series = Vec::new();
     let curve = |errs: Vec<Option<f64>>| {
@@ -282,14 +280,14 @@ fn cdf(all: &[MethodRuns], path: &Path) -> Result<()> {
         v.sort_by(f64::total_cmp);
         v.iter()
             .enumerate()
-            .map(|(i, e)| (e.max(1e-3).log10(), (i + 1) as f64 / n))
+            .map(|(i, e)| (*e, (i + 1) as f64 / n))
             .collect::<Vec<_>>()
     };
     for (i, r) in all.iter().enumerate() {
         let name = if r.open.is_empty() {
-            format!("{} (closed loop, horiz.)", ascii(r.method.name()))
+            format!("{} (closed loop, horizontal)", r.method.name())
         } else {
-            ascii(r.method.name())
+            r.method.name().to_string()
         };
         series.push(Series {
             name,
@@ -298,29 +296,27 @@ fn cdf(all: &[MethodRuns], path: &Path) -> Result<()> {
         });
         if !r.open.is_empty() && !r.closed.is_empty() {
             series.push(Series {
-                name: format!("{} (closed loop, horiz.)", ascii(r.method.name())),
+                name: format!("{} (closed loop, horizontal)", r.method.name()),
                 colour: COLOURS[(i + 5) % COLOURS.len()],
                 points: curve(r.closed.iter().map(|c| c.error_h_m).collect()),
             });
         }
     }
-    let yt = (0..=5)
-        .map(|i| (f64::from(i) / 5.0, format!("{:.1}", f64::from(i) / 5.0)))
-        .collect();
     plot(
         path,
-        "CDF of the final error",
+        "Cumulative distribution of the final error (100 seeds per method)",
         &Axis {
-            range: (-2.0, 2.0),
-            ticks: log_ticks(-2, 2),
-            title: "final error (m, log)",
+            range: (0.01, 300.0),
+            log: true,
+            title: "final error (m, log scale; open loop 3-D, closed loop horizontal)",
         },
         &Axis {
             range: (0.0, 1.0),
-            ticks: yt,
-            title: "fraction of runs",
+            log: false,
+            title: "fraction of runs with a smaller error",
         },
         &series,
+        Legend::LowerRight,
     )
 }
 
@@ -346,16 +342,8 @@ pub fn generate(args: &Args) -> Result<String> {
     if !args.no_paper_protocols {
         md.push_str("\n## Each baseline under its own paper's protocol\n\n");
         md.push_str(&super::paper::search::ds_section(args.seed, args.runs)?);
-        let rbpf: Option<Vec<Option<f64>>> = all
-            .iter()
-            .find(|r| r.method == Method::Rbpf)
-            .map(final_errors);
         md.push('\n');
-        md.push_str(&super::paper::search::iros_section(
-            args.seed,
-            args.runs,
-            rbpf.as_deref(),
-        ));
+        md.push_str(&super::paper::iros::iros_section(args.seed, args.runs));
         md.push('\n');
         let (drone, _) = super::paper::report::drone_section(args.seed, args.runs, &args.out)?;
         md.push_str(&drone);

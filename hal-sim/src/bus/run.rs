@@ -123,6 +123,8 @@ pub fn simulate_bus(cfg: &ScenarioConfig, unit: &Unit, cal: &Calibration) -> Res
     let n_imu = (duration * hz).floor() as u64;
     let mut imu_records = Vec::with_capacity(n_imu as usize + 1);
     let mut pulses = Vec::new();
+    // When the front end finished each pulse (the board writes it then).
+    let mut written_t = Vec::new();
     let mut adc_samples = 0u64;
     for k in 0..=n_imu {
         let t = k as f64 / hz;
@@ -138,6 +140,7 @@ pub fn simulate_bus(cfg: &ScenarioConfig, unit: &Unit, cal: &Calibration) -> Res
                     if let Some(p) = p
                         && let Some(h) = p.field()
                     {
+                        written_t.push(t);
                         pulses.push(Pulse {
                             t: quantize(f64::from(p.t_s), 1e4),
                             h: [0, 1, 2].map(|i| round_significant(f64::from(h[i]), 5)),
@@ -169,6 +172,7 @@ pub fn simulate_bus(cfg: &ScenarioConfig, unit: &Unit, cal: &Calibration) -> Res
     header.sign_ambiguous = true;
     sim.session = Session::new(header.clone());
     sim.session.records = merge(imu_records, pulses);
+    sim.pulse_written_t = Some(written_t);
     sim.truth = Session::new(header);
     sim.truth.records = truth;
     sim.receiver.sign_ambiguous = true;

@@ -1,7 +1,7 @@
 //! The paper-protocol sections of `baselines-report`: Mimmo et al.'s drone protocol
 //! ([`super::drone`]) over the report's seeds, with the variants that locate where the
 //! scheme stops working, and its error-against-time plot (their Fig. 4 over every seed).
-use super::super::plot::{Axis, COLOURS, Series, log_ticks, plot};
+use super::super::plot::{Axis, COLOURS, Legend, Series, plot};
 use super::drone::{self, DroneConfig, DroneRun, FINAL_WINDOW_S};
 use crate::accuracy::stats;
 use crate::physics::V3;
@@ -266,7 +266,7 @@ fn drone_reading(all: &[VariantRuns]) -> String {
     s
 }
 
-/// Quantile `q` of the finite values at each trace index, as `(t, log10 e)` points.
+/// Quantile `q` of the finite values at each trace index, as `(t, e)` points.
 fn quantile_curve(runs: &[DroneRun], pick: fn(&DroneRun) -> &[f64], q: f64) -> Vec<(f64, f64)> {
     let Some(t) = runs.first().map(|r| r.t.clone()) else {
         return Vec::new();
@@ -284,7 +284,7 @@ fn quantile_curve(runs: &[DroneRun], pick: fn(&DroneRun) -> &[f64], q: f64) -> V
         }
         v.sort_by(f64::total_cmp);
         let i = ((v.len() - 1) as f64 * q).round() as usize;
-        pts.push((*tk, v[i].max(1e-4).log10()));
+        pts.push((*tk, v[i]));
     }
     pts
 }
@@ -315,11 +315,7 @@ pub fn drone_plot(all: &[VariantRuns], example: &DroneRun, path: &Path) -> Resul
     }
     if let Some(w) = all.last().filter(|_| all.len() > 1) {
         series.push(Series {
-            name: format!(
-                "RLS, {}: median",
-                super::super::plot::ascii(w.variant.label)
-            )
-            .replace('±', "+-"),
+            name: format!("RLS, {}: median", w.variant.label),
             colour: COLOURS[4],
             points: quantile_curve(&w.runs, rls, 0.5),
         });
@@ -331,27 +327,25 @@ pub fn drone_plot(all: &[VariantRuns], example: &DroneRun, path: &Path) -> Resul
             .t
             .iter()
             .zip(&example.rls_error)
-            .map(|(t, e)| (*t, e.max(1e-4).log10()))
+            .map(|(t, e)| (*t, *e))
             .collect(),
     });
     let tmax = all.first().map_or(200.0, |p| p.variant.cfg.duration_s);
-    let xt = (0..=(tmax / 20.0) as usize)
-        .map(|i| ((i * 20) as f64, format!("{}", i * 20)))
-        .collect();
     plot(
         path,
-        "Mimmo et al. drone protocol: error of the victim estimate vs time (100 seeds)",
+        "Mimmo et al.'s drone protocol: error of the victim estimate against time",
         &Axis {
             range: (0.0, tmax),
-            ticks: xt,
-            title: "time (s)",
+            log: false,
+            title: "time of flight (s)",
         },
         &Axis {
-            range: (-3.0, 2.0),
-            ticks: log_ticks(-3, 2),
-            title: "error (m, log)",
+            range: (0.001, 300.0),
+            log: true,
+            title: "‖p̂ − p‖ (m, log scale)",
         },
         &series,
+        Legend::UpperRight,
     )
 }
 

@@ -1,0 +1,239 @@
+//! The board's session log: one [`Recorder`] writing every record, with `seq`, to the SD
+//! card ([`SdSink`]) and, as an option, to the UART stream; the device events a replay
+//! needs (the last reset's cause, withheld pulses and why, failed reads, overruns, marks,
+//! settings, faults); and the write errors, counted and reported, never dropped.
+//!
+//! Event kinds and their keys (spec `arva-session` v1: "extra keys carry the details"):
+//!
+//! | kind | why | extra keys |
+//! |---|---|---|
+//! | `reset` | `clean`, `panic`, `watchdog` or `hung` | `message` (the crash record's text) |
+//! | `settings` | – | the settings' keys (see the board binary) |
+//! | `withheld` | `overlap`, `saturated`, `truncated` | – |
+//! | `read_error` | `imu` or `adc` | `count` (ADC: failed frames in the last second) |
+//! | `overrun` | `adc_queue` | `count` (samples dropped since the last report) |
+//! | `mark` | – | – |
+//! | `fault` | the fault's word, or `cleared` | – |
+//! | `log_error` | `sd` or `uart` | `failed`, `refused` (records lost on every writer, records refused), `sd_lost_bytes`, `sd` (the card's word or `logging`) |
+
+use crate::Vec3;
+use crate::board::crash::LastReset;
+use crate::board::sd_log::{SdSink, SdState};
+use crate::frontend::PulseMeasurement;
+use crate::session_log::{Detail, Recorder, RecorderStats, Tee, plain_text};
+use core::fmt::Write;
+use embedded_sdmmc::BlockDevice;
+
+/// The board's session log over an SD sink and an optional UART stream `U`.
+pub struct BoardLog<D: BlockDevice, U: Write> {
+    rec: Recorder<Tee<SdSink<D>, U>>,
+    /// What was last reported: records failed and refused, the writers' failed writes.
+    reported: (u32, u32, [u32; 2]),
+}
+
+/// The `why` of a withheld pulse (`None` for a measured one).
+pub fn withheld_why(m: &PulseMeasurement) -> Option<&'static str> {
+    match m {
+        PulseMeasurement::Field(_) => None,
+        PulseMeasurement::Overlap => Some("overlap"),
+        PulseMeasurement::Saturated => Some("saturated"),
+        PulseMeasurement::Truncated => Some("truncated"),
+    }
+}
+
+impl<D: BlockDevice, U: Write> BoardLog<D, U> {
+    /// A log writing to `sd` and, when given, `uart`.
+    pub fn new(sd: SdSink<D>, uart: Option<U>) -> Self {
+        Self {
+            rec: Recorder::new(Tee::new(sd, uart)),
+            reported: (0, 0, [0; 2]),
+        }
+    }
+
+    /// The header (a segment starts).
+    pub fn header(&mut self, imu_hz: f32, earth_field_ut: &Vec3, sign_ambiguous: bool) {
+        let _counted = self.rec.header(imu_hz, earth_field_ut, sign_ambiguous);
+    }
+
+    /// The last reset's cause, right after the header.
+    pub fn reset(&mut self, t: f64, last: &LastReset<'_>) {
+        let (why, message) = match last {
+            LastReset::Clean => ("clean", None),
+            LastReset::Panic(m) => ("panic", Some(*m)),
+            LastReset::Starved(m) => ("watchdog", Some(*m)),
+            LastReset::WatchdogHung => ("hung", None),
+        };
+        let mut buf = [0u8; 128];
+        match message {
+            Some(m) => {
+                let m = plain_text(m, &mut buf);
+                self.event(t, "reset", Some(why), &[("message", Detail::Text(m))]);
+            }
+            None => self.event(t, "reset", Some(why), &[]),
+        }
+    }
+
+    /// An IMU sample.
+    pub fn imu(&mut self, t: f64, acc: &Vec3, gyr: &Vec3, mag: Option<&Vec3>) {
+        let _counted = self.rec.imu(t, acc, gyr, mag);
+    }
+
+    /// A pulse the front end finished: its field, or why it was withheld.
+    pub fn pulse(&mut self, t: f64, m: &PulseMeasurement, src: Option<u8>) {
+        match (m, withheld_why(m)) {
+            (PulseMeasurement::Field(h), _) => {
+                let _counted = self.rec.pulse(t, h, src);
+            }
+            (_, why) => self.event(t, "withheld", why, &[]),
+        }
+    }
+
+    /// Any event (written with `seq`; errors counted).
+    pub fn event(&mut self, t: f64, kind: &str, why: Option<&str>, details: &[(&str, Detail<'_>)]) {
+        let _counted = self.rec.event(t, kind, why, details);
+    }
+
+    /// The SD card's state.
+    pub fn sd_state(&self) -> SdState {
+        self.rec.writer_ref().a.state()
+    }
+
+    /// The recorder's counts.
+    pub fn stats(&self) -> RecorderStats {
+        self.rec.stats()
+    }
+
+    /// Once per main-loop tick, between records: flushes the SD card when due, and when
+    /// records were refused or a writer failed since the last report, writes a
+    /// `log_error` event (it reaches the UART stream when the card is what failed).
+    /// Returns the SD state when it changed, and the counts when they changed, for the
+    /// debug log.
+    pub fn tick(&mut self, t: f64, now_ms: u64) -> (Option<SdState>, Option<LogErrors>) {
+        let changed = self.rec.writer().a.poll(now_ms);
+        let now = self.counts();
+        if now == self.reported {
+            return (changed, None);
+        }
+        let (failed, refused, [sd, uart]) = now;
+        let errors = LogErrors {
+            failed,
+            refused,
+            sd_write_errors: sd,
+            uart_write_errors: uart,
+            sd_lost_bytes: self.rec.writer_ref().a.stats().map_or(0, |s| s.lost_bytes),
+        };
+        let state = self.sd_state().fault_label().unwrap_or("logging");
+        let lost = i64::try_from(errors.sd_lost_bytes).unwrap_or(i64::MAX);
+        self.event(
+            t,
+            "log_error",
+            Some(if uart > self.reported.2[1] {
+                "uart"
+            } else {
+                "sd"
+            }),
+            &[
+                ("failed", Detail::Int(i64::from(failed))),
+                ("refused", Detail::Int(i64::from(refused))),
+                ("sd_lost_bytes", Detail::Int(lost)),
+                ("sd", Detail::Text(state)),
+            ],
+        );
+        // The report itself may fail (the card is gone): that goes into the next report,
+        // not into a report of the report.
+        self.reported = self.counts();
+        (changed, Some(errors))
+    }
+
+    fn counts(&self) -> (u32, u32, [u32; 2]) {
+        let s = self.rec.stats();
+        (s.failed, s.refused, self.rec.writer_ref().errors())
+    }
+}
+
+/// The log's error counts, as [`BoardLog::tick`] reports them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct LogErrors {
+    /// Records lost on every writer.
+    pub failed: u32,
+    /// Records refused (non-finite values, text needing escaping).
+    pub refused: u32,
+    /// Failed writes to the card (a record takes several).
+    pub sd_write_errors: u32,
+    /// Failed writes to the UART.
+    pub uart_write_errors: u32,
+    /// Bytes the card lost (not flushed when it failed, or given after).
+    pub sd_lost_bytes: u64,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::board::crash::{CrashKind, CrashRecord};
+    use crate::board::sd_log::{RamCard, SdError, SdLog};
+    extern crate std;
+    use std::string::String;
+    use std::vec;
+
+    #[test]
+    fn events_and_errors_reach_the_uart_when_the_card_fails() {
+        // A card that fails at once: the log is refused at mount.
+        let mut blank = vec![0u8; 1 << 20];
+        let sd = SdSink::new(Some(
+            SdLog::open(RamCard::new(&mut blank), 0).map_err(|(e, _)| e),
+        ));
+        let mut log = BoardLog::new(sd, Some(String::new()));
+        log.header(100.0, &Vec3::new(21.0, 0.0, -42.0), true);
+        let crash = CrashRecord::new(CrashKind::Panic, format_args!("index \"7\" out\n@app.rs:3"));
+        log.reset(0.0, &LastReset::from_boot(&crash, false));
+        log.pulse(1.5, &PulseMeasurement::Overlap, None);
+        log.pulse(
+            2.5,
+            &PulseMeasurement::Field(Vec3::new(1e-6, 0.0, 0.0)),
+            Some(1),
+        );
+        log.imu(2.6, &Vec3::zeros(), &Vec3::zeros(), None);
+        assert_eq!(log.sd_state(), SdState::Failed(SdError::Volume));
+        let (changed, report) = log.tick(2.6, 1000);
+        assert_eq!(changed, None);
+        let report = report.unwrap();
+        // The UART took every record: none lost, but the card's failures are counted.
+        assert_eq!((report.failed, report.refused), (0, 0));
+        assert!(report.sd_write_errors >= 5);
+        // Nothing more failed: no second report.
+        assert_eq!(log.tick(2.7, 1010).1, None);
+        let uart = log.rec.into_writer().b.unwrap();
+        let lines: std::vec::Vec<&str> = uart.lines().collect();
+        assert_eq!(lines.len(), 6);
+        assert!(lines[0].contains(r#""type":"header""#) && lines[0].ends_with(r#","seq":0}"#));
+        assert_eq!(
+            lines[1],
+            r#"{"type":"event","t":0,"kind":"reset","why":"panic","message":"index '7' out @app.rs:3","seq":1}"#
+        );
+        assert_eq!(
+            lines[2],
+            r#"{"type":"event","t":1.5,"kind":"withheld","why":"overlap","seq":2}"#
+        );
+        assert!(
+            lines[3].starts_with(r#"{"type":"pulse","t":2.5,"#)
+                && lines[3].ends_with(r#","src":1,"seq":3}"#)
+        );
+        assert_eq!(
+            lines[5],
+            r#"{"type":"event","t":2.6,"kind":"log_error","why":"sd","failed":0,"refused":0,"sd_lost_bytes":0,"sd":"SD ERR","seq":5}"#
+        );
+    }
+
+    #[test]
+    fn without_a_card_the_uart_alone_takes_the_log_and_nothing_counts_as_failed() {
+        let mut log: BoardLog<RamCard<'_>, String> =
+            BoardLog::new(SdSink::new(None), Some(String::new()));
+        log.header(100.0, &Vec3::new(21.0, 0.0, -42.0), true);
+        log.reset(0.0, &LastReset::Clean);
+        log.event(0.5, "mark", None, &[]);
+        assert_eq!(log.tick(0.5, 600), (None, None));
+        assert_eq!(log.stats().written, 3);
+        assert_eq!(log.sd_state(), SdState::NoCard);
+    }
+}
