@@ -188,6 +188,11 @@ static mut FRONTEND: MaybeUninit<Frontend> = MaybeUninit::uninit();
 /// handler and by a starving watchdog feeder.
 #[unsafe(link_section = ".uninit.CRASH")]
 static mut CRASH: MaybeUninit<CrashRecord> = MaybeUninit::uninit();
+/// The session log (SD card file system, its block buffer, the UART): in SRAM, not on
+/// main's stack (initialized in `main` before use).
+#[unsafe(link_section = ".uninit.LOG")]
+static mut LOG: MaybeUninit<BoardLog<sd_card::SdioCard, stm32f4xx_hal::serial::Tx<pac::USART3>>> =
+    MaybeUninit::uninit();
 /// Set by the first panic: a panic inside the panic handler resets at once.
 static PANICKING: AtomicBool = AtomicBool::new(false);
 
@@ -465,7 +470,8 @@ fn main() -> ! {
     // Session log first, so everything after it can be recorded: the microSD card (its
     // bring-up marked in the crash record, see SD_INIT_MARK) and the UART stream.
     let gpiod = dp.GPIOD.split(&mut rcc);
-    let card_in = gpiob.pb12.into_pull_up_input().is_low();
+    // The switch is read after the SDIO set-up, so the pull-up has settled.
+    let card_detect = gpiob.pb12.into_pull_up_input();
     let sdio = stm32f4xx_hal::sdio::Sdio::new(
         dp.SDIO,
         (
@@ -473,6 +479,7 @@ fn main() -> ! {
         ),
         &mut rcc,
     );
+    let card_in = card_detect.is_low();
     let skip_sd = matches!(last_reset, LastReset::Starved(m) if m == SD_INIT_MARK);
     store_crash(&CrashRecord::new(
         CrashKind::Starved,
@@ -486,7 +493,9 @@ fn main() -> ! {
     let Ok(uart) = dp.USART3.tx(gpiob.pb10, 921_600.bps(), &mut rcc) else {
         fatal("USART3 configuration refused");
     };
-    let mut log = BoardLog::new(sd, UART_LOG.then_some(uart));
+    // SAFETY: the only reference ever taken to LOG, here, once; no interrupt uses it.
+    let log = unsafe { &mut *core::ptr::addr_of_mut!(LOG) }
+        .write(BoardLog::new(sd, UART_LOG.then_some(uart)));
     // The unit's settings from flash sector 11 (defaults, with the reason, when erased or
     // corrupt).
     // SAFETY: SETTINGS_LEN bytes of memory-mapped flash inside the reserved sector
