@@ -4,15 +4,18 @@
 //! ([`watchdog`]), the crash record kept across a reset ([`crash`]), the guarded and
 //! recoverable I2C bus ([`i2c_bus`]), the sensor-fault and battery display
 //! ([`health`]), the guidance tones ([`sound`]) and the session log on the microSD card
-//! ([`sd_log`]) with the device events a replay needs ([`board_log`]).
+//! ([`sd_log`]) with the device events a replay needs ([`board_log`]), the settings stored in flash
+//! ([`settings`]) and the two-button menu that edits them ([`menu`]).
 
 pub mod board_log;
 pub mod crash;
 pub mod health;
 pub mod i2c_bus;
+pub mod menu;
 pub mod pins;
 pub mod profile;
 pub mod sd_log;
+pub mod settings;
 pub mod sound;
 pub mod watchdog;
 
