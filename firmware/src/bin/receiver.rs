@@ -88,7 +88,7 @@ use firmware::drivers::ads131m04::Ads131m04;
 use firmware::drivers::imu::Imu;
 use firmware::frontend::{Frontend, IfRange, PulseMeasurement, RangeChange};
 use firmware::session_log::Detail;
-use firmware::timebase::{ClockEvent, SampleClock};
+use firmware::timebase::{ClockEvent, Instant, SampleClock, pulse_centre_us};
 use firmware::victims::MarkButton;
 use heapless::spsc::{Consumer, Producer, Queue};
 use ssd1306::{I2CDisplayInterface, Ssd1306, prelude::*};
@@ -102,8 +102,8 @@ use stm32f4xx_hal::{interrupt, pac, prelude::*, rcc::Config, spi};
 
 /// The board this binary runs on: analog chain, ADC, IMU mounting and rates, defaults.
 const PROFILE: BoardProfile = board::REFERENCE;
-/// Longest time (s) the screen goes without a redraw when no pulse redraws it.
-const REDRAW_MAX_S: f32 = 1.0;
+/// Longest time (µs) the screen goes without a redraw when no pulse redraws it.
+const REDRAW_MAX_US: u64 = 1_000_000;
 /// ADC frames buffered between the DRDY interrupt and the main loop: 250 ms at 8 kSPS,
 /// room for the worst estimator step plus a display flush.
 const QUEUE_LEN: usize = 2048;
@@ -188,6 +188,11 @@ static mut FRONTEND: MaybeUninit<Frontend> = MaybeUninit::uninit();
 /// handler and by a starving watchdog feeder.
 #[unsafe(link_section = ".uninit.CRASH")]
 static mut CRASH: MaybeUninit<CrashRecord> = MaybeUninit::uninit();
+/// The session log (SD card file system, its block buffer, the UART): in SRAM, not on
+/// main's stack (initialized in `main` before use).
+#[unsafe(link_section = ".uninit.LOG")]
+static mut LOG: MaybeUninit<BoardLog<sd_card::SdioCard, stm32f4xx_hal::serial::Tx<pac::USART3>>> =
+    MaybeUninit::uninit();
 /// Set by the first panic: a panic inside the panic handler resets at once.
 static PANICKING: AtomicBool = AtomicBool::new(false);
 
@@ -433,7 +438,7 @@ fn apply_range(frontend: &mut Frontend, pin: &mut PC3<Output>, change: RangeChan
 
 /// Board time for the session log's records, s.
 fn log_t(clock: &SampleClock) -> f64 {
-    f64::from(clock.now_s())
+    clock.now().secs_f64()
 }
 
 /// Clears `screen` and draws `model` with the health overlay (a sensor fault over the
@@ -518,7 +523,9 @@ fn main() -> ! {
     let Ok(uart) = dp.USART3.tx(gpiob.pb10, 921_600.bps(), &mut rcc) else {
         fatal("USART3 configuration refused");
     };
-    let mut log = BoardLog::new(sd, UART_LOG.then_some(uart));
+    // SAFETY: the only reference ever taken to LOG, here, once; no interrupt uses it.
+    let log = unsafe { &mut *core::ptr::addr_of_mut!(LOG) }
+        .write(BoardLog::new(sd, UART_LOG.then_some(uart)));
     // The unit's settings from flash sector 11 (defaults, with the reason, when erased or
     // corrupt).
     // SAFETY: SETTINGS_LEN bytes of memory-mapped flash inside the reserved sector
@@ -710,9 +717,9 @@ fn main() -> ! {
     let Ok(mut clock) = SampleClock::new(rate, IMU_HZ, taken) else {
         fatal("sample clock refused its rates");
     };
-    let mut last_imu_t = f32::NEG_INFINITY;
+    let mut last_imu_t: Option<Instant> = None;
     // Board time of the last redraw.
-    let mut drawn_s = f32::NEG_INFINITY;
+    let mut drawn: Option<Instant> = None;
     // Progress of the main loop's work, on the cycle counter's clock.
     let mut ms_clock = MonotonicMs::new(SYSCLK_HZ / 1000, DWT::cycle_count());
     let mut watch = ProgressWatch::new(PROGRESS_LIMIT_MS, ms_clock.now_ms(DWT::cycle_count()));
@@ -737,8 +744,11 @@ fn main() -> ! {
             match frontend.push(sample.volts, sample.clipped) {
                 Ok(Some(pulse)) => {
                     // The DSP counts only the samples it saw: stalls are added back.
-                    let t_pulse = pulse.t_s + clock.offset_s();
-                    log.pulse(f64::from(t_pulse), &pulse.measurement, pulse.src);
+                    let t_pulse = Instant::from_micros(
+                        pulse_centre_us(pulse.start_sample, pulse.duration_s, rate)
+                            + clock.offset_us(),
+                    );
+                    log.pulse(t_pulse.secs_f64(), &pulse.measurement, pulse.src);
                     let model = match pulse.measurement {
                         PulseMeasurement::Field(h) => {
                             receiver.on_pulse(t_pulse, &h, pulse.src).ok()
@@ -750,7 +760,7 @@ fn main() -> ! {
                         shown = model;
                     }
                     if let Some(model) = model.filter(|_| screen_ok) {
-                        drawn_s = clock.now_s();
+                        drawn = Some(clock.now());
                         if !show(&mut screen, &model, fault, battery.state(), log.sd_state()) {
                             defmt::warn!("display write failed");
                         }
@@ -807,7 +817,7 @@ fn main() -> ! {
                 }
                 redraw = true;
             }
-            let t = clock.now_s();
+            let t = clock.now();
             // A fault shows at once and is logged when it comes and goes.
             sensors.bus_stuck(bus.borrow().stuck());
             let now_fault = sensors.fault();
@@ -833,11 +843,13 @@ fn main() -> ! {
             let sd_fault = log.sd_state().fault_label().is_some();
             fault_led.set_state((fault.is_some() || !screen_ok || sd_fault).into());
             // Pulses redraw the screen; without them it is redrawn at least every
-            // REDRAW_MAX_S, so that "NO SIGNAL" and the arrow to a silent victim (carried
+            // REDRAW_MAX_US, so that "NO SIGNAL" and the arrow to a silent victim (carried
             // over the walk) show. Not at every tick: a flush holds the shared I2C bus
             // ≈ 25 ms, two or three IMU ticks.
-            if redraw || t - drawn_s >= REDRAW_MAX_S {
-                drawn_s = t;
+            if redraw
+                || drawn.is_none_or(|d| t.micros().saturating_sub(d.micros()) >= REDRAW_MAX_US)
+            {
+                drawn = Some(t);
                 shown = receiver.display_model();
                 if screen_ok && !show(&mut screen, &shown, fault, battery.state(), log.sd_state()) {
                     defmt::warn!("display write failed");
@@ -876,12 +888,12 @@ fn main() -> ! {
                 playing = tone;
             }
             // A short hole in the ADC's samples holds the clock: skip that tick's sample.
-            if let Some(imu) = imu.as_mut().filter(|_| t > last_imu_t) {
-                last_imu_t = t;
+            if let Some(imu) = imu.as_mut().filter(|_| last_imu_t.is_none_or(|l| t > l)) {
+                last_imu_t = Some(t);
                 match imu.read() {
                     Ok(r) => {
                         let mag = mag_cal.map_or(r.mag, |c| c.apply(&r.mag));
-                        log.imu(f64::from(t), &r.acc, &r.gyr, Some(&mag));
+                        log.imu(t.secs_f64(), &r.acc, &r.gyr, Some(&mag));
                         if receiver.on_imu(t, &r.acc, &r.gyr, Some(&mag)).is_err() {
                             defmt::warn!("IMU sample refused");
                         }
@@ -889,7 +901,7 @@ fn main() -> ! {
                     }
                     Err(_) => {
                         defmt::warn!("IMU read failed");
-                        log.event(f64::from(t), "read_error", Some("imu"), &[]);
+                        log.event(t.secs_f64(), "read_error", Some("imu"), &[]);
                         sensors.imu_read(false);
                     }
                 }
