@@ -805,23 +805,20 @@ fn sidecar(
         })
         .map(|r| crate::sidecar::record(r, &[]))
         .collect::<anyhow::Result<_>>()?;
-    Ok(crate::sidecar::Sidecar {
-        report: "multi-report".into(),
-        command: command.into(),
-        first_seed: args.first_seed,
-        tries: args.tries,
-        markdown_fnv64: String::new(),
-        summary: serde_json::Value::Object(headline),
+    Ok(crate::sidecar::Sidecar::new(
+        "multi-report",
+        command,
+        args.first_seed,
+        args.tries,
+        serde_json::Value::Object(headline),
         check,
-    })
+    ))
 }
 
 /// Re-runs one sidecar record (its seed and layout) with the current code.
 pub fn rerun(record: &serde_json::Value) -> anyhow::Result<serde_json::Value> {
     let layout: Layout = serde_json::from_value(record["layout"].clone())?;
-    let seed = record["seed"]
-        .as_u64()
-        .ok_or_else(|| anyhow::anyhow!("record without a seed"))?;
+    let seed = crate::sidecar::seed_of(record, "/seed")?;
     let o = run(&MultiConfig::new(seed, victims_for(seed), layout))?;
     crate::sidecar::record(&o, &[])
 }
