@@ -288,6 +288,17 @@ pub struct ClassicScreen {
 }
 
 impl ClassicSearch {
+    /// Moves every stored time stamp `shift_s` s earlier: the clock's epoch moved that
+    /// much later ([`crate::timebase::Epoch`]); durations are left as they are.
+    pub fn rebase(&mut self, shift_s: f32) {
+        if let Some(t) = self.last_t.as_mut() {
+            *t -= shift_s;
+        }
+        if let Phase::Fine(line) = &mut self.phase {
+            line.ready_t -= shift_s;
+        }
+    }
+
     /// A search waiting for its first pulse; refuses a configuration that is not valid.
     pub fn new(cfg: ClassicConfig) -> Result<Self, ClassicError> {
         if !cfg.is_valid() {

@@ -203,6 +203,13 @@ pub struct Victim {
 }
 
 impl Victim {
+    /// Moves every stored time stamp `shift_s` s earlier: the clock's epoch moved that
+    /// much later ([`crate::timebase::Epoch`]); durations are left as they are.
+    pub fn rebase(&mut self, shift_s: f32) {
+        self.last_t -= shift_s;
+        self.filter.rebase(shift_s);
+    }
+
     /// A free slot whose filter uses `cfg` (already checked by the bank).
     #[inline(always)]
     fn empty(cfg: SogConfig) -> Self {
@@ -302,6 +309,15 @@ pub struct VictimBank {
 }
 
 impl VictimBank {
+    /// Moves every stored time stamp `shift_s` s earlier: the clock's epoch moved that
+    /// much later ([`crate::timebase::Epoch`]); durations are left as they are.
+    pub fn rebase(&mut self, shift_s: f32) {
+        self.withheld_t -= shift_s;
+        for v in &mut self.slots {
+            v.rebase(shift_s);
+        }
+    }
+
     /// An empty bank whose filters use `cfg`, or `InvalidConfig`.
     pub fn new(cfg: SogConfig) -> Result<Self, EstimateError> {
         VictimSog::check_config(&cfg)?;

@@ -1595,23 +1595,20 @@ fn sidecar(
             Ok(serde_json::json!({"case": case, "run": crate::sidecar::record(r, VOLATILE)?}))
         })
         .collect::<anyhow::Result<_>>()?;
-    Ok(crate::sidecar::Sidecar {
-        report: "accuracy".into(),
-        command: command.into(),
-        first_seed: args.first_seed,
-        tries: args.tries,
-        markdown_fnv64: String::new(),
-        summary: serde_json::Value::Object(headline),
+    Ok(crate::sidecar::Sidecar::new(
+        "accuracy",
+        command,
+        args.first_seed,
+        args.tries,
+        serde_json::Value::Object(headline),
         check,
-    })
+    ))
 }
 
 /// Re-runs one sidecar record (its case and seed) with the current code and default noise.
 pub fn rerun(record: &serde_json::Value) -> anyhow::Result<serde_json::Value> {
     let case: Case = serde_json::from_value(record["case"].clone())?;
-    let seed = record["run"]["seed"]
-        .as_u64()
-        .ok_or_else(|| anyhow::anyhow!("record without a seed"))?;
+    let seed = crate::sidecar::seed_of(record, "/run/seed")?;
     let run = run_case(case, seed, 1, &MotionNoise::default())
         .pop()
         .ok_or_else(|| anyhow::anyhow!("no run"))?;

@@ -594,22 +594,19 @@ fn sidecar(
         .filter(|o| o.seed <= crate::sidecar::CHECK_SEEDS)
         .map(|o| crate::sidecar::record(o, &[]))
         .collect::<anyhow::Result<_>>()?;
-    Ok(crate::sidecar::Sidecar {
-        report: "classic-report".into(),
-        command: command.into(),
-        first_seed: 1,
-        tries: args.tries,
-        markdown_fnv64: String::new(),
+    Ok(crate::sidecar::Sidecar::new(
+        "classic-report",
+        command,
+        1,
+        args.tries,
         summary,
         check,
-    })
+    ))
 }
 
 /// Re-runs one sidecar record (its seed) with the current code.
 pub fn rerun(record: &serde_json::Value) -> anyhow::Result<serde_json::Value> {
-    let seed = record["seed"]
-        .as_u64()
-        .ok_or_else(|| anyhow::anyhow!("record without a seed"))?;
+    let seed = crate::sidecar::seed_of(record, "/seed")?;
     crate::sidecar::record(&run(seed)?, &[])
 }
 

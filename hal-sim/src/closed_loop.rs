@@ -45,6 +45,7 @@ use crate::policies::directional::{DirectionalSearch, DsCommand, DsConfig, Rescu
 use crate::receiver_config::{ImuNoise, PulseNoise, ReceiverConfig};
 use crate::rescuer::{Wobble, wrap_pi};
 use crate::sog_replay::sog_config;
+use crate::stamp;
 use crate::transmitter::{Transmitter, TransmitterSpec};
 use crate::world::earth_field_ut;
 use firmware::Vec3;
@@ -700,7 +701,7 @@ pub fn run(
         };
         // The IMU sample of the middle tick.
         let (acc, gyr, mag) = imu_sample(&mut rng, &imu_noise, &bias, &earth, [&p0, &p1, &p2]);
-        let _ = rx.on_imu(p1.t as f32, &acc, &gyr, Some(&mag));
+        let _ = rx.on_imu(stamp(p1.t), &acc, &gyr, Some(&mag));
         if k.is_multiple_of(10) {
             track.push([p1.p.x, p1.p.y]);
         }
@@ -727,8 +728,11 @@ pub fn run(
                     // Optimistic: the classical receiver's field in W, exactly rotated.
                     let cmd = ds.on_pulse(centre, &(rot * h_b), &h_w, &p1.p, &ds_view(&person));
                     apply_ds(cmd, &mut person);
-                } else if let Some(d) = Some(rx.motion().clone().take_displacement(centre as f32))
-                    && let Ok(display) = rx.on_pulse(centre as f32, &h, None)
+                } else if let Some(d) = Some(
+                    rx.motion()
+                        .clone()
+                        .take_displacement(rx.seconds(stamp(centre))),
+                ) && let Ok(display) = rx.on_pulse(stamp(centre), &h, None)
                 {
                     let true_move = prev_pose.map_or(V3::zeros(), |(pp, pr): (V3, M3)| {
                         pr.transpose() * (p1.p - pp)
@@ -1002,7 +1006,7 @@ pub(crate) fn act(
         return;
     }
     // A display update taken after standing still: plan the next steps.
-    if d.pulses > plan.acted_pulse && f64::from(d.t_s) > plan.stopped_at {
+    if d.pulses > plan.acted_pulse && d.t_s > plan.stopped_at {
         plan.acted_pulse = d.pulses;
         let walk = f64::from(d.walk_m.unwrap_or(0.0));
         let n = (walk / cfg.step_length_m).round().min(3.0);

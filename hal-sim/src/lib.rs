@@ -34,3 +34,9 @@ pub mod sog_replay;
 pub mod team;
 pub mod transmitter;
 pub mod world;
+
+/// Simulated time (s since the start) as the firmware's time stamp, rounded to the µs
+/// (the board's clock); a time before the start or not finite maps to the start.
+pub fn stamp(t_s: f64) -> firmware::timebase::Instant {
+    firmware::timebase::Instant::from_secs_f64(t_s).unwrap_or_default()
+}

@@ -34,6 +34,7 @@ use crate::closed_loop::{
 };
 use crate::physics::{V3, rotation_from_rpy};
 use crate::receiver_config::ReceiverConfig;
+use crate::stamp;
 use crate::transmitter::{CARRIER_HZ, Transmitter, TransmitterSpec};
 use firmware::Vec3;
 use firmware::app::Receiver;
@@ -396,7 +397,7 @@ pub fn run_with(
             continue;
         };
         let (acc, gyr, mag) = imu_sample(&mut rng, &imu_noise, &bias, &earth, [&p0, &p1, &p2]);
-        let _ = rx.on_imu(p1.t as f32, &acc, &gyr, Some(&mag));
+        let _ = rx.on_imu(stamp(p1.t), &acc, &gyr, Some(&mag));
         let heard = |tx: &Transmitter| {
             tx.field_at(&p1.p)
                 .filter(|h| h.norm() >= 3.0 * noise.sigma_bkg_a_per_m)
@@ -424,7 +425,7 @@ pub fn run_with(
                 tl.run += 1;
                 tl.longest = tl.longest.max(tl.run);
                 tracker.occluded(centre as f32);
-                rx.on_withheld(centre as f32);
+                rx.on_withheld(stamp(centre));
                 continue;
             }
             tl.run = 0;
@@ -451,7 +452,7 @@ pub fn run_with(
                 * sign;
             let h = Vec3::new(h_b.x as f32, h_b.y as f32, h_b.z as f32);
             let other_before = rx.stats().other_source;
-            let res = rx.on_pulse(centre as f32, &h, Some(src));
+            let res = rx.on_pulse(stamp(centre), &h, Some(src));
             if cfg.trace {
                 trace_pulse(&rx, centre, i, src, &res, other_before);
             }
@@ -476,7 +477,7 @@ pub fn run_with(
             person.w_target = 0.0;
             if p1.t - t0 >= PROBE_S {
                 probing_since = None;
-                let origin = pose_at_pulse(&pulse_poses, f64::from(display.t_s)).unwrap_or(p1.p);
+                let origin = pose_at_pulse(&pulse_poses, display.t_s).unwrap_or(p1.p);
                 let probe = rx.estimate().map(|e| {
                     [
                         origin.x + f64::from(e.p.x),
@@ -641,7 +642,7 @@ fn trace_state(rx: &Receiver, txs: &[Transmitter], p: &V3, t: f64) {
                 i + 1,
                 v.src(),
                 v.pulses(),
-                v.last_t(),
+                rx.secs_since_boot(v.last_t()),
                 if v.marked() { " M" } else { "" },
                 est.unwrap_or_default()
             )
@@ -804,23 +805,20 @@ fn sidecar(
         })
         .map(|r| crate::sidecar::record(r, &[]))
         .collect::<anyhow::Result<_>>()?;
-    Ok(crate::sidecar::Sidecar {
-        report: "multi-report".into(),
-        command: command.into(),
-        first_seed: args.first_seed,
-        tries: args.tries,
-        markdown_fnv64: String::new(),
-        summary: serde_json::Value::Object(headline),
+    Ok(crate::sidecar::Sidecar::new(
+        "multi-report",
+        command,
+        args.first_seed,
+        args.tries,
+        serde_json::Value::Object(headline),
         check,
-    })
+    ))
 }
 
 /// Re-runs one sidecar record (its seed and layout) with the current code.
 pub fn rerun(record: &serde_json::Value) -> anyhow::Result<serde_json::Value> {
     let layout: Layout = serde_json::from_value(record["layout"].clone())?;
-    let seed = record["seed"]
-        .as_u64()
-        .ok_or_else(|| anyhow::anyhow!("record without a seed"))?;
+    let seed = crate::sidecar::seed_of(record, "/seed")?;
     let o = run(&MultiConfig::new(seed, victims_for(seed), layout))?;
     crate::sidecar::record(&o, &[])
 }

@@ -22,7 +22,8 @@ const RANGES: &[(&str, Get, [f64; 2], &str)] = &[
     (
         "pulse_noise.sigma_bkg_A_per_m",
         |c| Some(c.pulse_noise.sigma_bkg_a_per_m),
-        [0.0, 1e-5],
+        // A noise floor of zero is no receiver (the filter's pulse σ would vanish).
+        [1e-12, 1e-5],
         "A/m",
     ),
     (
@@ -416,7 +417,7 @@ mod tests {
             (
                 r#"{"pulse_noise":{"sigma_bkg_A_per_m":1}}"#,
                 "pulse_noise.sigma_bkg_A_per_m",
-                "[0, 0.00001]",
+                "[0.000000000001, 0.00001]",
             ),
             (
                 r#"{"pulse_noise":{"k_sen":-0.1}}"#,

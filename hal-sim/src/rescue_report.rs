@@ -1125,23 +1125,20 @@ fn sidecar(
         })
         .map(|r| crate::sidecar::record(r, VOLATILE))
         .collect::<anyhow::Result<_>>()?;
-    Ok(crate::sidecar::Sidecar {
-        report: "rescue-report".into(),
-        command: command.into(),
-        first_seed: args.first_seed,
-        tries: args.tries,
-        markdown_fnv64: String::new(),
-        summary: serde_json::Value::Object(summary),
+    Ok(crate::sidecar::Sidecar::new(
+        "rescue-report",
+        command,
+        args.first_seed,
+        args.tries,
+        serde_json::Value::Object(summary),
         check,
-    })
+    ))
 }
 
 /// Re-runs one sidecar record (its case and seed) with the current code.
 pub fn rerun(record: &serde_json::Value) -> anyhow::Result<serde_json::Value> {
     let case: Case = serde_json::from_value(record["case"].clone())?;
-    let seed = record["seed"]
-        .as_u64()
-        .ok_or_else(|| anyhow::anyhow!("record without a seed"))?;
+    let seed = crate::sidecar::seed_of(record, "/seed")?;
     crate::sidecar::record(&run_one(case, seed)?, VOLATILE)
 }
 

@@ -33,6 +33,36 @@ pub struct Sidecar {
     pub check: Vec<serde_json::Value>,
 }
 
+impl Sidecar {
+    /// A sidecar for `report` run by `command`; the markdown hash is set by [`write`].
+    pub fn new(
+        report: &str,
+        command: &str,
+        first_seed: u64,
+        tries: u64,
+        summary: serde_json::Value,
+        check: Vec<serde_json::Value>,
+    ) -> Self {
+        Self {
+            report: report.into(),
+            command: command.into(),
+            first_seed,
+            tries,
+            markdown_fnv64: String::new(),
+            summary,
+            check,
+        }
+    }
+}
+
+/// The seed stored at `pointer` (a JSON pointer, e.g. `/seed`) of a check record.
+pub fn seed_of(record: &serde_json::Value, pointer: &str) -> anyhow::Result<u64> {
+    record
+        .pointer(pointer)
+        .and_then(serde_json::Value::as_u64)
+        .ok_or_else(|| anyhow::anyhow!("record without a seed at {pointer}"))
+}
+
 /// FNV-1a, 64 bits: a stable content hash (std's hasher is not stable across releases).
 pub fn fnv64(bytes: &[u8]) -> String {
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;

@@ -8,9 +8,10 @@ use crate::replay::{Estimator, ReplayLine, VictimEstimate};
 use crate::session::{Event, Header, Imu, Pulse};
 use crate::world::earth_field_ut;
 use firmware::Vec3;
-use firmware::app::{AppConfig, Receiver};
+use firmware::app::{AppConfig, AppError, Receiver};
 use firmware::estimate::SogConfig;
 use firmware::motion::MotionConfig;
+use firmware::timebase::Instant;
 
 /// Earth field assumed when the header gives none: 48 µT at 63° inclination.
 const DEFAULT_EARTH: (f64, f64) = (48.0, 63.0);
@@ -21,6 +22,8 @@ pub struct SogReplay {
     receiver: Box<Receiver>,
     /// Log time of the first record: the firmware runs on times relative to it (f32).
     t0: Option<f64>,
+    /// Pulses whose time could not be a time stamp (before the first record, NaN).
+    bad_times: usize,
     /// The log's transmitter ids (`src`, any u32) in the order first heard: the
     /// firmware's track id is the index, so distinct sources stay distinct.
     sources: Vec<u32>,
@@ -79,6 +82,7 @@ impl SogReplay {
         Ok(Self {
             receiver: Box::new(receiver),
             t0: None,
+            bad_times: 0,
             sources: Vec::new(),
             last_pulses: Vec::new(),
             duplicates: 0,
@@ -103,14 +107,16 @@ impl SogReplay {
         Some(u8::MAX)
     }
 
-    fn rel(&mut self, t: f64) -> f32 {
+    /// The log's time `t` (s) as the firmware's time stamp, counted from the first
+    /// record's time; `None` for a time before it or not finite.
+    fn stamp(&mut self, t: f64) -> Option<Instant> {
         let t0 = *self.t0.get_or_insert(t);
-        (t - t0) as f32
+        Instant::from_secs_f64(t - t0)
     }
 
     /// Pulses refused by the firmware so far.
     pub fn refused(&self) -> usize {
-        self.receiver.stats().pulses_refused as usize
+        self.receiver.stats().pulses_refused as usize + self.bad_times
     }
 
     /// The application (read-only).
@@ -164,7 +170,9 @@ fn v3(a: &[f64; 3]) -> Vec3 {
 
 impl Estimator for SogReplay {
     fn on_imu(&mut self, imu: &Imu) {
-        let t = self.rel(imu.t);
+        let Some(t) = self.stamp(imu.t) else {
+            return;
+        };
         let mut mag = imu.mag.as_ref().map(v3);
         // A magnetometer axis at or beyond its full scale loses the heading aid of this
         // sample, not the sample: the accelerometer and gyro readings are still good.
@@ -194,9 +202,15 @@ impl Estimator for SogReplay {
         if self.last_pulses.len() < 16 {
             self.last_pulses.push(pulse.clone());
         }
-        let t = self.rel(pulse.t);
         let src = self.track(pulse.src);
-        match self.receiver.on_pulse(t, &v3(&pulse.h), src) {
+        let result = match self.stamp(pulse.t) {
+            Some(t) => self.receiver.on_pulse(t, &v3(&pulse.h), src),
+            None => {
+                self.bad_times += 1;
+                Err(AppError::NonFinite)
+            }
+        };
+        match result {
             Ok(display) => self.line(pulse.t, &display, None),
             // A refused pulse leaves the receiver unchanged: report its current state.
             Err(_) => {
@@ -213,8 +227,9 @@ impl Estimator for SogReplay {
                 let _ = self.receiver.mark();
             }
             "withheld" => {
-                let t = self.rel(event.t);
-                let _ = self.receiver.on_withheld(t);
+                if let Some(t) = self.stamp(event.t) {
+                    let _ = self.receiver.on_withheld(t);
+                }
             }
             _ => {}
         }

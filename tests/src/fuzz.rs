@@ -564,6 +564,12 @@ pub fn imu_driver(data: &[u8]) {
 /// are finite.
 pub fn app_receiver(data: &[u8]) {
     use firmware::app::{AppConfig, Receiver};
+    use firmware::timebase::Instant;
+    // A fuzzed time: seconds when it is one, else its bits as a far-off time stamp.
+    let stamp = |x: f32| {
+        Instant::from_secs_f64(f64::from(x))
+            .unwrap_or(Instant::from_micros(u64::from(x.to_bits()) << 20))
+    };
     let mut b = Bytes::new(data);
     let earth = Vec3::new(20.0, -1.0, -44.0);
     let step = if b.bool() { Some(0.75) } else { None };
@@ -593,14 +599,14 @@ pub fn app_receiver(data: &[u8]) {
                     let acc = base_acc + da * wob;
                     let gyr = dg * wob;
                     let m = if op & 0x40 != 0 { None } else { Some(&mag) };
-                    let _ = rx.on_imu(ti, &acc, &gyr, m);
+                    let _ = rx.on_imu(stamp(ti), &acc, &gyr, m);
                 }
             }
             5 | 6 => {
                 let h = b.vec3(1e-5);
                 let tp = if op & 0x80 != 0 { b.f32(10.0) } else { t };
                 let src = if b.bool() { Some(b.u8() % 10) } else { None };
-                if let Ok(d) = rx.on_pulse(tp, &h, src) {
+                if let Ok(d) = rx.on_pulse(stamp(tp), &h, src) {
                     let _ = d;
                 }
             }

@@ -23,6 +23,7 @@ use hal_sim::faults::stationary::{self, Stand};
 use hal_sim::scenario::{Preset, ScenarioConfig, Simulation, simulate, stream};
 use hal_sim::sensors::ImuModel;
 use hal_sim::session::Session;
+use hal_sim::stamp;
 
 /// The accuracy target at the end of a search, m.
 const TARGET_M: f64 = 1.0;
@@ -678,7 +679,7 @@ fn imu_i2c_errors_are_reported_skipped_and_bridged() {
             let t = f64::from(k) / 100.0;
             clock.set(t);
             match imu.read() {
-                Ok(r) => rx.on_imu(t as f32, &r.acc, &r.gyr, Some(&r.mag)).unwrap(),
+                Ok(r) => rx.on_imu(stamp(t), &r.acc, &r.gyr, Some(&r.mag)).unwrap(),
                 Err(ImuError::Comm { chip, error }) => {
                     errors += 1;
                     assert!(matches!(chip, Chip::Bmi160 | Chip::Lsm303agrMag));
@@ -760,9 +761,10 @@ fn imu_not_answering_at_start_up_is_an_init_error() {
     );
     let p = sim.session.pulses().next().unwrap();
     let h = Vec3::new(p.h[0] as f32, p.h[1] as f32, p.h[2] as f32);
-    assert!(rx.on_pulse(p.t as f32, &h, None).is_ok());
+    assert!(rx.on_pulse(stamp(p.t), &h, None).is_ok());
+    let nan = Vec3::new(f32::NAN, 0.0, 0.0);
     assert!(matches!(
-        rx.on_imu(f32::NAN, &h, &h, None),
+        rx.on_imu(stamp(p.t + 0.01), &nan, &h, None),
         Err(AppError::Motion(MotionError::NonFinite))
     ));
 }
@@ -776,9 +778,9 @@ fn the_board_path_flags_a_withheld_pulse_too() {
     let cfg = hal_sim::sog_replay::app_config(&sim.session.header, &sim.receiver);
     let mut rx = Box::new(Receiver::new(cfg).unwrap());
     let p = sim.session.pulses().next().unwrap();
-    let d = rx.on_withheld(p.t as f32 - 0.5);
+    let d = rx.on_withheld(stamp(p.t - 0.5));
     assert!(d.overlap);
     assert_eq!(rx.stats().pulses_withheld, 1);
     let h = Vec3::new(p.h[0] as f32, p.h[1] as f32, p.h[2] as f32);
-    assert!(!rx.on_pulse(p.t as f32, &h, None).unwrap().overlap);
+    assert!(!rx.on_pulse(stamp(p.t), &h, None).unwrap().overlap);
 }

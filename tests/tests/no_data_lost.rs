@@ -16,6 +16,7 @@ use firmware::session_log::{self, LogError};
 use hal_sim::scenario::{Preset, ScenarioConfig, simulate};
 use hal_sim::session::{Record, read_file};
 use hal_sim::sog_replay::app_config;
+use hal_sim::stamp;
 use std::io::Write as _;
 use std::panic::{AssertUnwindSafe, catch_unwind};
 
@@ -97,10 +98,10 @@ fn run_until_crash(
             match r {
                 Record::Imu(x) => {
                     let mag = x.mag.as_ref().map(v);
-                    let _ = rx.on_imu(x.t as f32, &v(&x.acc), &v(&x.gyr), mag.as_ref());
+                    let _ = rx.on_imu(stamp(x.t), &v(&x.acc), &v(&x.gyr), mag.as_ref());
                 }
                 Record::Pulse(x) => {
-                    let _ = rx.on_pulse(x.t as f32, &v(&x.h), None);
+                    let _ = rx.on_pulse(stamp(x.t), &v(&x.h), None);
                 }
                 Record::Truth(_) => {}
             }

@@ -30,7 +30,7 @@ use cortex_m_semihosting::hprintln;
 use firmware::estimate::{
     Attitude, DefaultSog, Displacement, Estimator, Phase, Pulse, SOG_CAPACITY, SogConfig,
 };
-use firmware::frontend::{Calibration, Frontend, FrontendConfig};
+use firmware::frontend::{Calibration, Frontend, FrontendConfig, Range, RangingConfig};
 use firmware::{Vec3, dipole};
 use icount::InstructionCounter;
 
@@ -75,6 +75,9 @@ fn dsp(counter: &mut InstructionCounter) -> (u64, u64, f32, bool) {
             phase_rad: phase,
             ..Calibration::default()
         },
+        // As the board runs it: gain ranging on, from the most sensitive setting.
+        range: Range::MOST_SENSITIVE,
+        ranging: Some(RangingConfig::default()),
         ..FrontendConfig::default()
     };
     let Ok(mut frontend) = Frontend::new(cfg) else {

@@ -118,12 +118,13 @@ impl Figures {
 fn period(rx: &mut Receiver, walk: &mut Walk, c: &mut InstructionCounter, f: &mut Figures) {
     for _ in 0..IMU_PER_PULSE {
         let s = walk.next_imu();
-        let (_, n) = c.measure(|| rx.on_imu(s.t, &s.acc, &s.gyr, Some(&s.mag)));
+        let ts = walk.now();
+        let (_, n) = c.measure(|| rx.on_imu(ts, &s.acc, &s.gyr, Some(&s.mag)));
         f.imu_worst = f.imu_worst.max(n);
         f.instructions += n;
     }
     let Some(h) = walk.pulse() else { return };
-    let t = walk.t();
+    let t = walk.now();
     let (out, n) = c.measure(|| rx.on_pulse(t, &h, None));
     f.pulse_worst = f.pulse_worst.max(n);
     f.instructions += n;

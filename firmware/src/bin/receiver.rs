@@ -79,21 +79,22 @@ use firmware::board::crash::{self, CrashKind, CrashRecord, LastReset};
 use firmware::board::health::{self, Battery, BatteryState, Fault, SensorHealth};
 use firmware::board::i2c_bus::{self, ClearError, Cleared, Guarded, Recoverable};
 use firmware::board::sd_log::SdState;
+use firmware::board::settings::{self, Settings};
 use firmware::board::sound::{self, SoundInput};
 use firmware::board::watchdog::{MonotonicMs, ProgressWatch, Verdict, Work};
 use firmware::board::{self, BoardProfile, pins};
 use firmware::display;
 use firmware::drivers::ads131m04::Ads131m04;
 use firmware::drivers::imu::Imu;
-use firmware::frontend::{Frontend, PulseMeasurement};
+use firmware::frontend::{Frontend, IfRange, PulseMeasurement, RangeChange};
 use firmware::session_log::Detail;
-use firmware::timebase::{ClockEvent, SampleClock};
+use firmware::timebase::{ClockEvent, Instant, SampleClock, pulse_centre_us};
 use firmware::victims::MarkButton;
 use heapless::spsc::{Consumer, Producer, Queue};
 use ssd1306::{I2CDisplayInterface, Ssd1306, prelude::*};
 use stm32f4xx_hal::adc::Adc;
 use stm32f4xx_hal::adc::config::{AdcConfig, SampleTime};
-use stm32f4xx_hal::gpio::{Edge, ExtiPin, Input, OpenDrain, Output, PB6, PB7, PC7};
+use stm32f4xx_hal::gpio::{Edge, ExtiPin, Input, OpenDrain, Output, PB6, PB7, PC3, PC7};
 use stm32f4xx_hal::i2c::I2c;
 use stm32f4xx_hal::rcc::Rcc;
 use stm32f4xx_hal::watchdog::IndependentWatchdog;
@@ -101,8 +102,8 @@ use stm32f4xx_hal::{interrupt, pac, prelude::*, rcc::Config, spi};
 
 /// The board this binary runs on: analog chain, ADC, IMU mounting and rates, defaults.
 const PROFILE: BoardProfile = board::REFERENCE;
-/// Longest time (s) the screen goes without a redraw when no pulse redraws it.
-const REDRAW_MAX_S: f32 = 1.0;
+/// Longest time (µs) the screen goes without a redraw when no pulse redraws it.
+const REDRAW_MAX_US: u64 = 1_000_000;
 /// ADC frames buffered between the DRDY interrupt and the main loop: 250 ms at 8 kSPS,
 /// room for the worst estimator step plus a display flush.
 const QUEUE_LEN: usize = 2048;
@@ -187,6 +188,11 @@ static mut FRONTEND: MaybeUninit<Frontend> = MaybeUninit::uninit();
 /// handler and by a starving watchdog feeder.
 #[unsafe(link_section = ".uninit.CRASH")]
 static mut CRASH: MaybeUninit<CrashRecord> = MaybeUninit::uninit();
+/// The session log (SD card file system, its block buffer, the UART): in SRAM, not on
+/// main's stack (initialized in `main` before use).
+#[unsafe(link_section = ".uninit.LOG")]
+static mut LOG: MaybeUninit<BoardLog<sd_card::SdioCard, stm32f4xx_hal::serial::Tx<pac::USART3>>> =
+    MaybeUninit::uninit();
 /// Set by the first panic: a panic inside the panic handler resets at once.
 static PANICKING: AtomicBool = AtomicBool::new(false);
 
@@ -400,9 +406,39 @@ fn watch_adc(event: ClockEvent) -> ClockEvent {
     event
 }
 
+/// Applies the DSP's change of analog setting (gain ranging): the coils' PGA gain in one
+/// register write (inside the DRDY handler's critical section) and the IF range switch.
+/// Samples already queued were taken in the old setting: the DSP discards them with the
+/// switch's settling. A failed gain write puts the switch and the DSP back on `from`.
+fn apply_range(frontend: &mut Frontend, pin: &mut PC3<Output>, change: RangeChange, queued: usize) {
+    let set_pin = |pin: &mut PC3<Output>, r: IfRange| match r {
+        IfRange::High => pin.set_low(),
+        IfRange::Low => pin.set_high(),
+    };
+    let gain_ok = cortex_m::interrupt::free(|cs| {
+        SAMPLER
+            .borrow(cs)
+            .borrow_mut()
+            .as_mut()
+            .is_some_and(|s| s.adc.set_coil_gains(change.to.gain).is_ok())
+    });
+    if gain_ok {
+        set_pin(pin, change.to.if_range);
+        frontend.extend_settle(queued);
+        defmt::info!("range {} -> {} ({})", change.from, change.to, change.reason);
+    } else {
+        set_pin(pin, change.from.if_range);
+        if frontend.set_range(change.from).is_err() {
+            defmt::error!("front end refused its own setting");
+        }
+        frontend.extend_settle(queued);
+        defmt::warn!("PGA write failed: staying at {}", change.from);
+    }
+}
+
 /// Board time for the session log's records, s.
 fn log_t(clock: &SampleClock) -> f64 {
-    f64::from(clock.now_s())
+    clock.now().secs_f64()
 }
 
 /// Clears `screen` and draws `model` with the health overlay (a sensor fault over the
@@ -464,7 +500,8 @@ fn main() -> ! {
     // Session log first, so everything after it can be recorded: the microSD card (its
     // bring-up marked in the crash record, see SD_INIT_MARK) and the UART stream.
     let gpiod = dp.GPIOD.split(&mut rcc);
-    let card_in = gpiob.pb12.into_pull_up_input().is_low();
+    // The switch is read after the SDIO set-up, so the pull-up has settled.
+    let card_detect = gpiob.pb12.into_pull_up_input();
     let sdio = stm32f4xx_hal::sdio::Sdio::new(
         dp.SDIO,
         (
@@ -472,6 +509,7 @@ fn main() -> ! {
         ),
         &mut rcc,
     );
+    let card_in = card_detect.is_low();
     let skip_sd = matches!(last_reset, LastReset::Starved(m) if m == SD_INIT_MARK);
     store_crash(&CrashRecord::new(
         CrashKind::Starved,
@@ -485,27 +523,57 @@ fn main() -> ! {
     let Ok(uart) = dp.USART3.tx(gpiob.pb10, 921_600.bps(), &mut rcc) else {
         fatal("USART3 configuration refused");
     };
-    let mut log = BoardLog::new(sd, UART_LOG.then_some(uart));
-    let earth = PROFILE.default_earth_field();
+    // SAFETY: the only reference ever taken to LOG, here, once; no interrupt uses it.
+    let log = unsafe { &mut *core::ptr::addr_of_mut!(LOG) }
+        .write(BoardLog::new(sd, UART_LOG.then_some(uart)));
+    // The unit's settings from flash sector 11 (defaults, with the reason, when erased or
+    // corrupt).
+    // SAFETY: SETTINGS_LEN bytes of memory-mapped flash inside the reserved sector
+    // (memory.x), always readable; nothing writes flash while this boot reads it.
+    let stored = unsafe {
+        core::slice::from_raw_parts(settings::SETTINGS_ADDR as *const u8, settings::SETTINGS_LEN)
+    };
+    let (settings, settings_error) = Settings::load(stored);
+    let step_length_m = settings
+        .calibration
+        .step_length_m
+        .or(PROFILE.defaults.step_length_m);
+    let earth = settings.earth_field();
     log.header(PROFILE.imu.rate_hz, &earth, true);
     log.reset(0.0, &last_reset);
+    let region = settings::REGIONS
+        .get(usize::from(settings.region))
+        .map_or("?", |r| r.name);
     log.event(
         0.0,
         "settings",
-        None,
+        Some(if settings_error.is_some() {
+            "defaults"
+        } else {
+            "stored"
+        }),
         &[
             // "none": not calibrated (the step detector's default length applies).
             (
                 "step_length_m",
-                PROFILE
-                    .defaults
-                    .step_length_m
-                    .map_or(Detail::Text("none"), Detail::Num),
+                step_length_m.map_or(Detail::Text("none"), Detail::Num),
             ),
             ("mode", Detail::Text("sog")),
-            ("sound", Detail::Flag(SOUND_ON)),
+            ("volume", Detail::Int(i64::from(settings.volume))),
+            ("region", Detail::Text(region)),
+            (
+                "antenna_cal",
+                Detail::Flag(settings.calibration.antenna.is_some()),
+            ),
+            ("mag_cal", Detail::Flag(settings.calibration.mag.is_some())),
         ],
     );
+    if let Some(e) = settings_error {
+        defmt::warn!("settings: {}; defaults apply", e);
+    }
+    // The logged and processed magnetometer reading is the calibrated one (the spec's
+    // body-frame field), so a replay needs no calibration of its own.
+    let mag_cal = settings.calibration.mag;
     match log.sd_state() {
         SdState::Logging(n) => defmt::info!("SD card: logging to session {=u16}", n),
         SdState::NoCard => defmt::warn!("SD card: none inserted, log on UART only"),
@@ -590,7 +658,7 @@ fn main() -> ! {
     }
 
     // The application in SRAM.
-    let cfg = PROFILE.app_config(earth, PROFILE.defaults.step_length_m);
+    let cfg = PROFILE.app_config(earth, step_length_m);
     // SAFETY: the only reference ever taken to RECEIVER, here, once, before any interrupt
     // that could run is enabled; no interrupt touches it.
     let slot = unsafe { &mut *core::ptr::addr_of_mut!(RECEIVER) };
@@ -598,7 +666,7 @@ fn main() -> ! {
         fatal("default configuration refused");
     };
     // The nominal calibration of the design until the unit's bench calibration is stored.
-    let fe_cfg = PROFILE.frontend_config(&PROFILE.analog.nominal);
+    let fe_cfg = PROFILE.frontend_config(&settings.calibration.antenna_or(&PROFILE.analog.nominal));
     let rate = fe_cfg.sample_rate_hz;
     let Ok(new_frontend) = Frontend::new(fe_cfg) else {
         fatal("front-end configuration refused");
@@ -616,8 +684,13 @@ fn main() -> ! {
     let mut mark = MarkButton::new(gpioc.pc6.into_pull_up_input());
     // The sound button: the same debounced press, on D12.
     let mut sound_button = MarkButton::new(gpioc.pc2.into_pull_up_input());
-    let mut muted = !SOUND_ON;
+    // Volume steps are not wired to the buzzer yet (50 % duty): 0 mutes.
+    let mut muted = !SOUND_ON || settings.volume == 0;
     let mut chirp_until_ms = 0u64;
+    // The IF range switch starts in the high range, the ADC at the profile's gain: the
+    // DSP's starting setting (`BoardProfile::start_range`).
+    let mut if_range = gpioc.pc3.into_push_pull_output();
+    if_range.set_low();
     let mut drdy = gpioc.pc7.into_pull_up_input();
     drdy.make_interrupt_source(&mut syscfg);
     drdy.trigger_on_edge(&mut exti, Edge::Falling);
@@ -644,9 +717,9 @@ fn main() -> ! {
     let Ok(mut clock) = SampleClock::new(rate, IMU_HZ, taken) else {
         fatal("sample clock refused its rates");
     };
-    let mut last_imu_t = f32::NEG_INFINITY;
+    let mut last_imu_t: Option<Instant> = None;
     // Board time of the last redraw.
-    let mut drawn_s = f32::NEG_INFINITY;
+    let mut drawn: Option<Instant> = None;
     // Progress of the main loop's work, on the cycle counter's clock.
     let mut ms_clock = MonotonicMs::new(SYSCLK_HZ / 1000, DWT::cycle_count());
     let mut watch = ProgressWatch::new(PROGRESS_LIMIT_MS, ms_clock.now_ms(DWT::cycle_count()));
@@ -671,8 +744,11 @@ fn main() -> ! {
             match frontend.push(sample.volts, sample.clipped) {
                 Ok(Some(pulse)) => {
                     // The DSP counts only the samples it saw: stalls are added back.
-                    let t_pulse = pulse.t_s + clock.offset_s();
-                    log.pulse(f64::from(t_pulse), &pulse.measurement, pulse.src);
+                    let t_pulse = Instant::from_micros(
+                        pulse_centre_us(pulse.start_sample, pulse.duration_s, rate)
+                            + clock.offset_us(),
+                    );
+                    log.pulse(t_pulse.secs_f64(), &pulse.measurement, pulse.src);
                     let model = match pulse.measurement {
                         PulseMeasurement::Field(h) => {
                             receiver.on_pulse(t_pulse, &h, pulse.src).ok()
@@ -684,7 +760,7 @@ fn main() -> ! {
                         shown = model;
                     }
                     if let Some(model) = model.filter(|_| screen_ok) {
-                        drawn_s = clock.now_s();
+                        drawn = Some(clock.now());
                         if !show(&mut screen, &model, fault, battery.state(), log.sd_state()) {
                             defmt::warn!("display write failed");
                         }
@@ -692,6 +768,9 @@ fn main() -> ! {
                 }
                 Ok(None) => {}
                 Err(_) => defmt::warn!("front end refused a sample"),
+            }
+            if let Some(change) = frontend.take_range_change() {
+                apply_range(frontend, &mut if_range, change, consumer.len());
             }
         }
         watch.progress(Work::Samples, ms_clock.now_ms(DWT::cycle_count()));
@@ -738,7 +817,7 @@ fn main() -> ! {
                 }
                 redraw = true;
             }
-            let t = clock.now_s();
+            let t = clock.now();
             // A fault shows at once and is logged when it comes and goes.
             sensors.bus_stuck(bus.borrow().stuck());
             let now_fault = sensors.fault();
@@ -764,11 +843,13 @@ fn main() -> ! {
             let sd_fault = log.sd_state().fault_label().is_some();
             fault_led.set_state((fault.is_some() || !screen_ok || sd_fault).into());
             // Pulses redraw the screen; without them it is redrawn at least every
-            // REDRAW_MAX_S, so that "NO SIGNAL" and the arrow to a silent victim (carried
+            // REDRAW_MAX_US, so that "NO SIGNAL" and the arrow to a silent victim (carried
             // over the walk) show. Not at every tick: a flush holds the shared I2C bus
             // ≈ 25 ms, two or three IMU ticks.
-            if redraw || t - drawn_s >= REDRAW_MAX_S {
-                drawn_s = t;
+            if redraw
+                || drawn.is_none_or(|d| t.micros().saturating_sub(d.micros()) >= REDRAW_MAX_US)
+            {
+                drawn = Some(t);
                 shown = receiver.display_model();
                 if screen_ok && !show(&mut screen, &shown, fault, battery.state(), log.sd_state()) {
                     defmt::warn!("display write failed");
@@ -807,19 +888,20 @@ fn main() -> ! {
                 playing = tone;
             }
             // A short hole in the ADC's samples holds the clock: skip that tick's sample.
-            if let Some(imu) = imu.as_mut().filter(|_| t > last_imu_t) {
-                last_imu_t = t;
+            if let Some(imu) = imu.as_mut().filter(|_| last_imu_t.is_none_or(|l| t > l)) {
+                last_imu_t = Some(t);
                 match imu.read() {
                     Ok(r) => {
-                        log.imu(f64::from(t), &r.acc, &r.gyr, Some(&r.mag));
-                        if receiver.on_imu(t, &r.acc, &r.gyr, Some(&r.mag)).is_err() {
+                        let mag = mag_cal.map_or(r.mag, |c| c.apply(&r.mag));
+                        log.imu(t.secs_f64(), &r.acc, &r.gyr, Some(&mag));
+                        if receiver.on_imu(t, &r.acc, &r.gyr, Some(&mag)).is_err() {
                             defmt::warn!("IMU sample refused");
                         }
                         sensors.imu_read(true);
                     }
                     Err(_) => {
                         defmt::warn!("IMU read failed");
-                        log.event(f64::from(t), "read_error", Some("imu"), &[]);
+                        log.event(t.secs_f64(), "read_error", Some("imu"), &[]);
                         sensors.imu_read(false);
                     }
                 }

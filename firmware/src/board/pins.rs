@@ -23,6 +23,7 @@
 //! | battery voltage, ½ of BAT through the Feather's 2 × 100 kΩ divider | — (on board) | PA3 | ADC1 IN3 |
 //! | buzzer (passive piezo to ground), guidance tones | D9 | PB8 | TIM4 CH3 PWM (AF2) |
 //! | sound button (to ground, internal pull-up): mutes and unmutes the tones | D12 | PC2 | GPIO input |
+//! | IF range switch of the antenna's analog chain (high = low range, `frontend::ranging`) | D11 | PC3 | GPIO output |
 //! | microSD (session log): data 0–3 | — (on board) | PC8–PC11 | SDIO D0–D3 (AF12) |
 //! | microSD: clock | — (on board) | PC12 | SDIO CK |
 //! | microSD: command | — (on board) | PD2 | SDIO CMD |
@@ -99,7 +100,7 @@ pub const FEATHER_ON_BOARD: [(&str, P); 13] = [
 ];
 
 /// The receiver's pins (the module table; the board binary binds exactly these).
-pub const ASSIGNMENTS: [Assignment; 20] = [
+pub const ASSIGNMENTS: [Assignment; 21] = [
     a("antenna ADC SCK", P('B', 13), Site::Header("SCK")),
     a("antenna ADC MISO", P('B', 14), Site::Header("MISO")),
     a("antenna ADC MOSI", P('B', 15), Site::Header("MOSI")),
@@ -120,6 +121,7 @@ pub const ASSIGNMENTS: [Assignment; 20] = [
     a("microSD CLK", P('C', 12), Site::OnBoard("SDIO_CLK")),
     a("microSD CMD", P('D', 2), Site::OnBoard("SDIO_CMD")),
     a("microSD card detect", SD_DETECT, Site::OnBoard("SD_DETECT")),
+    a("IF range switch", IF_RANGE, Site::Header("D11")),
 ];
 
 /// The microSD slot's card-detect switch (low with a card in).
@@ -135,6 +137,8 @@ pub const I2C_SCL: P = P('B', 6);
 pub const I2C_SDA: P = P('B', 7);
 /// The fault LED (the Feather's red LED on D13).
 pub const FAULT_LED: P = P('C', 1);
+/// The IF range switch's control (D11; high selects the low range).
+pub const IF_RANGE: P = P('C', 3);
 /// The battery divider's tap (ADC1 channel 3).
 pub const BATTERY: P = P('A', 3);
 /// The battery divider's ratio: BAT = ratio × V(PA3) (two 100 kΩ resistors).

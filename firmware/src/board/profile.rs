@@ -13,7 +13,8 @@ use crate::Vec3;
 use crate::app::{AppConfig, SearchMode};
 use crate::drivers::ads131m04::{self, Channels, Gain, Osr, PowerMode, WordLength};
 use crate::drivers::imu::{ACC_LSB_M_S2, GYR_LSB_RAD_S, MAG_LSB_UT, Mounting};
-use crate::frontend::{Calibration, FrontendConfig};
+pub use crate::frontend::IfRange;
+use crate::frontend::{Calibration, FrontendConfig, Range, RangingConfig};
 use crate::victims::{MAX_VICTIMS, VICTIM_CAPACITY};
 
 /// Everything the firmware needs to know about one board design.
@@ -44,17 +45,6 @@ pub struct AnalogProfile {
     pub lo_hz: f32,
     /// Nominal intermediate frequency, Hz.
     pub if_hz: f32,
-}
-
-/// The IF amplifier's range switch, common to the three coils.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
-pub enum IfRange {
-    /// Full gain: the receiver's sensitivity is set by the environment's noise.
-    #[default]
-    High,
-    /// Gain reduced by [`AnalogProfile::nominal`]'s `low_range_ratio` (≈ 64×), for fields
-    /// within about a metre of a strong beacon.
-    Low,
 }
 
 /// The antenna ADC as the board runs it.
@@ -152,7 +142,9 @@ pub const REFERENCE: BoardProfile = BoardProfile {
             osr: Osr::Osr512,
             power: PowerMode::HighResolution,
             channels: Channels::ALL,
-            gains: [Gain::G1; 4],
+            // The coils start on the most sensitive rung of the gain ranging
+            // ([`crate::frontend::Range::MOST_SENSITIVE`]); the spare stays at 1.
+            gains: [Gain::G128, Gain::G128, Gain::G128, Gain::G1],
             word_length: WordLength::Bits24,
         },
         clkin_hz: 8_192_000.0,
@@ -195,13 +187,25 @@ impl BoardProfile {
     }
 
     /// The pulse DSP's configuration for this board with the unit's calibration `cal`
-    /// (the nominal one, [`AnalogProfile::nominal`], until the unit is calibrated).
+    /// (the nominal one, [`AnalogProfile::nominal`], until the unit is calibrated): gain
+    /// ranging on, starting from the ADC configuration's coil gain in the high IF range.
     pub fn frontend_config(&self, cal: &Calibration) -> FrontendConfig {
         FrontendConfig {
             sample_rate_hz: self.sample_rate_hz(),
             if_hz: self.analog.if_hz,
             calibration: *cal,
+            range: self.start_range(),
+            ranging: Some(RangingConfig::default()),
             ..FrontendConfig::default()
+        }
+    }
+
+    /// The analog setting the board starts in: the high IF range at the ADC
+    /// configuration's gain of coil channel 0.
+    pub fn start_range(&self) -> Range {
+        Range {
+            if_range: IfRange::High,
+            gain: self.adc.config.gains[0],
         }
     }
 

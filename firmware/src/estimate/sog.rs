@@ -429,6 +429,14 @@ pub enum Phase {
 }
 
 impl<const N: usize> SogFilter<N> {
+    /// Moves every stored time stamp `shift_s` s earlier: the clock's epoch moved that
+    /// much later ([`crate::timebase::Epoch`]); durations are left as they are.
+    pub fn rebase(&mut self, shift_s: f32) {
+        if let Some(t) = self.last_t.as_mut() {
+            *t -= shift_s;
+        }
+    }
+
     /// [`Estimator::step`], calling `mark` at the end of each [`Phase`] (the plain step
     /// passes a no-op, which compiles away).
     pub fn step_marked(

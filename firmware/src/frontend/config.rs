@@ -1,6 +1,7 @@
 //! Front-end configuration.
 
 use super::calibration::Calibration;
+use super::ranging::{Range, RangingConfig};
 use super::{MAX_BLOCK, RING_BLOCKS};
 
 /// Why a configuration or an input was refused.
@@ -54,6 +55,11 @@ pub struct FrontendConfig {
     pub max_quadrature_fraction: f32,
     /// Volts → A/m per coil.
     pub calibration: Calibration,
+    /// The analog setting (IF range, PGA gain of the coil channels) at start-up; the
+    /// ADC must be configured to it.
+    pub range: Range,
+    /// Automatic gain ranging (`None`: the setting stays at `range`).
+    pub ranging: Option<RangingConfig>,
 }
 
 impl Default for FrontendConfig {
@@ -78,6 +84,8 @@ impl Default for FrontendConfig {
             // for the channels' phase-calibration error on a real board.
             max_quadrature_fraction: 1e-3,
             calibration: Calibration::default(),
+            range: Range::HIGH_G1,
+            ranging: None,
         }
     }
 }
@@ -91,7 +99,7 @@ impl FrontendConfig {
     /// Check the configuration: positive finite rates, IF below Nyquist with a whole
     /// number of cycles per block, block length in 4..=[`MAX_BLOCK`], offset search below
     /// half the block rate, detection window well inside the buffer, thresholds ordered
-    /// `1 < k_off < k_on`, valid calibration.
+    /// `1 < k_off < k_on`, valid calibration, valid ranging starting on its ladder.
     pub fn validate(&self) -> Result<(), FrontendError> {
         let fs = self.sample_rate_hz;
         let cycles = self.if_hz * self.block_len as f32 / fs;
@@ -116,7 +124,10 @@ impl FrontendConfig {
             && self.warmup_blocks >= 1
             && self.max_residual_fraction.is_finite()
             && self.max_quadrature_fraction.is_finite()
-            && self.calibration.is_valid();
+            && self.calibration.is_valid()
+            && self
+                .ranging
+                .is_none_or(|r| r.is_valid() && self.range.index().is_some());
         if ok {
             Ok(())
         } else {

@@ -64,16 +64,20 @@ mod config;
 mod dominance;
 mod fft;
 mod pulse;
+mod ranging;
 mod tracker;
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_ranging;
 
 pub use calibration::Calibration;
 pub use complex::C32;
 pub use config::{FrontendConfig, FrontendError};
 pub use dominance::{DOMINANCE_RATIO, DominanceError, OverlapVerdict, overlap_verdict};
 pub use pulse::{Pulse, PulseMeasurement};
+pub use ranging::{IfRange, RUNGS, Range, RangeChange, RangeReason, Ranger, RangingConfig};
 pub use tracker::{
     DORMANT_S, ESTABLISHED_HITS, MAX_TRACKS, PERIOD_MAX_S, PERIOD_MIN_S, Track, TransmitterTracker,
 };
@@ -108,6 +112,25 @@ pub struct FrontendStats {
     pub saturated: u32,
     /// Pulses reported as truncated.
     pub truncated: u32,
+    /// Changes of the analog setting (gain ranging).
+    pub range_changes: u32,
+}
+
+/// Per-coil complex calibration of the block phasors in IF range `range`: field per
+/// volt at the ADC input and the channel's phase lag undone. The ADC's PGA is divided out
+/// by the driver (`to_volts`); its gain error (TI SBAS946: ±0.5 % at most, far less
+/// between gains) is not calibrated.
+fn coil_calibration(c: &Calibration, range: IfRange) -> [C32; 3] {
+    [0, 1, 2].map(|i| {
+        let mut g = c.gain_a_per_m_per_v.get(i).copied().unwrap_or(1.0);
+        let mut ph = c.phase_rad.get(i).copied().unwrap_or(0.0);
+        if range == IfRange::Low {
+            g *= c.low_range_ratio.get(i).copied().unwrap_or(1.0);
+            ph += c.low_range_phase_rad.get(i).copied().unwrap_or(0.0);
+        }
+        // A lag of φ shows as e^{−jφ} on the phasor: undo it.
+        C32::cis(ph).scale(g)
+    })
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -130,8 +153,20 @@ pub struct Frontend {
     ring: [[C32; 3]; RING_BLOCKS],
     energy: [f32; RING_BLOCKS],
     saturated: [bool; RING_BLOCKS],
+    /// Each block's IF amplitude plus offset (largest coil) as a fraction of its
+    /// setting's full scale.
+    peak: [f32; RING_BLOCKS],
     blocks: u64,
     floor: f32,
+    /// Blocks up to this count are a switch transient: ignored.
+    settle_until: u64,
+    /// Blocks up to this count seed the noise floor (no detection).
+    warm_until: u64,
+    /// Blocks that have seeded the floor since the last (re)start.
+    seeded: u64,
+    range: Range,
+    ranger: Option<Ranger>,
+    change: Option<RangeChange>,
     alpha: f32,
     state: State,
     quiet_from: u64,
@@ -152,14 +187,11 @@ impl Frontend {
             *z = C32::cis(-2.0 * PI * cfg.if_hz * n as f32 / cfg.sample_rate_hz)
                 .scale(2.0 / l as f32);
         }
-        let c = &cfg.calibration;
-        let cal = [0, 1, 2].map(|i| {
-            let g = c.gain_a_per_m_per_v.get(i).copied().unwrap_or(1.0);
-            let ph = c.phase_rad.get(i).copied().unwrap_or(0.0);
-            // A lag of φ shows as e^{−jφ} on the phasor: undo it.
-            C32::cis(ph).scale(g)
-        });
+        let cal = coil_calibration(&cfg.calibration, cfg.range.if_range);
         let alpha = (cfg.block_s() / cfg.floor_time_constant_s).min(1.0);
+        let ranger = cfg
+            .ranging
+            .map(|r| Ranger::new(r, cfg.range.index().unwrap_or(0)));
         Ok(Frontend {
             cfg,
             lo,
@@ -170,8 +202,15 @@ impl Frontend {
             ring: [[C32::ZERO; 3]; RING_BLOCKS],
             energy: [0.0; RING_BLOCKS],
             saturated: [false; RING_BLOCKS],
+            peak: [0.0; RING_BLOCKS],
             blocks: 0,
             floor: 0.0,
+            settle_until: 0,
+            warm_until: cfg.warmup_blocks.max(cfg.detect_blocks) as u64,
+            seeded: 0,
+            range: cfg.range,
+            ranger,
+            change: None,
             alpha,
             state: State::Idle,
             quiet_from: 0,
@@ -209,6 +248,90 @@ impl Frontend {
         &self.tracker
     }
 
+    /// The analog setting the next sample must be taken in.
+    pub fn range(&self) -> Range {
+        self.range
+    }
+
+    /// The last change of the analog setting not yet taken, if any: the caller applies
+    /// its `to` to the hardware (PGA gains, IF range switch) before the next sample, and
+    /// may log it. Changes happen only between pulses (see [`ranging`](RangingConfig)).
+    pub fn take_range_change(&mut self) -> Option<RangeChange> {
+        self.change.take()
+    }
+
+    /// `samples` samples already taken in the old setting are still to come (a queue
+    /// between the ADC's interrupt and the DSP): discard them with the settling, so the
+    /// new calibration is never applied to them. Call right after a change.
+    pub fn extend_settle(&mut self, samples: usize) {
+        let l = self.cfg.block_len.max(1);
+        let blocks = samples.div_ceil(l) as u64;
+        if self.settle_until >= self.blocks {
+            self.settle_until += blocks;
+            self.warm_until += blocks;
+        }
+    }
+
+    /// The hardware is at `range` (e.g. a gain write failed): calibrate from the next
+    /// sample for it and re-seed the noise floor. A setting off the ladder while ranging
+    /// is [`FrontendError::InvalidConfig`] and changes nothing.
+    pub fn set_range(&mut self, range: Range) -> Result<(), FrontendError> {
+        if let Some(r) = self.ranger.as_mut() {
+            r.force(range.index().ok_or(FrontendError::InvalidConfig)?);
+        }
+        self.switch_to(range);
+        Ok(())
+    }
+
+    /// Use `range` from the next sample on: new calibration, settle, re-seed the floor.
+    fn switch_to(&mut self, range: Range) {
+        self.range = range;
+        self.cal = coil_calibration(&self.cfg.calibration, range.if_range);
+        self.state = State::Idle;
+        self.settle_until = self.blocks + self.cfg.ranging.map_or(0, |r| r.settle_blocks) as u64;
+        self.warm_until =
+            self.settle_until + self.cfg.warmup_blocks.max(self.cfg.detect_blocks) as u64;
+        self.seeded = 0;
+        self.floor = 0.0;
+        // The partial block holds samples of the old setting: start the next one afresh.
+        self.acc = [C32::ZERO; 3];
+        self.in_block = 0;
+        self.block_saturated = false;
+        let t = self.now();
+        if let Some(r) = self.ranger.as_mut() {
+            r.reset_quiet(t);
+        }
+    }
+
+    /// Apply a decision of the ranging rule.
+    fn ranged(&mut self, decision: Option<(usize, RangeReason)>) {
+        let Some((rung, reason)) = decision else {
+            return;
+        };
+        let Some(to) = Range::rung(rung) else { return };
+        let from = self.change.map_or(self.range, |c| c.from);
+        let t_s = self.now();
+        self.switch_to(to);
+        self.stats.range_changes += 1;
+        self.change = Some(RangeChange {
+            t_s,
+            from,
+            to,
+            reason,
+        });
+    }
+
+    /// Time of the end of the last whole block, s, in `f32` (≈ 0.25 ms resolution after
+    /// an hour, plenty for the ranging's hold time; the `f64` of [`Self::seconds`] costs a
+    /// software division per block on the M4F).
+    fn now(&self) -> f32 {
+        self.blocks as f32 * self.cfg.block_s()
+    }
+
+    fn peak_at(&self, b: u64) -> f32 {
+        self.peak.get(Self::ring_index(b)).copied().unwrap_or(0.0)
+    }
+
     /// Samples consumed so far.
     pub fn samples(&self) -> u64 {
         self.blocks * self.cfg.block_len as u64 + self.in_block as u64
@@ -240,17 +363,26 @@ impl Frontend {
             *out = a * k;
         }
         let sat = self.block_saturated;
+        // The block's peak for the gain ranging: the IF amplitude the block phasor
+        // measures (its modulus, V) plus the channel's DC offset, per coil — a per-sample
+        // |v| maximum would cost ≈ 40 instructions per sample on the M4F for the same
+        // answer on a pulse (clipping itself is flagged by the ADC).
+        let mut amp = 0.0f32;
+        for (a, off) in self.acc.iter().zip(self.cfg.calibration.offset_v) {
+            amp = amp.max(libm::sqrtf(a.norm_sqr()) + libm::fabsf(off));
+        }
+        let peak = amp / self.range.full_scale_v();
         self.acc = [C32::ZERO; 3];
         self.in_block = 0;
         self.block_saturated = false;
-        Ok(self.on_block(p, sat))
+        Ok(self.on_block(p, sat, peak))
     }
 
     fn ring_index(b: u64) -> usize {
         (b % RING_BLOCKS as u64) as usize
     }
 
-    fn on_block(&mut self, p: [C32; 3], sat: bool) -> Option<Pulse> {
+    fn on_block(&mut self, p: [C32; 3], sat: bool, peak: f32) -> Option<Pulse> {
         let e: f32 = p.iter().map(|z| z.norm_sqr()).sum();
         // Guard the floor and statistics against an absurd (overflowing) block: no real
         // signal comes near the ceiling, so such a block is clipped garbage. Its energy is
@@ -265,20 +397,28 @@ impl Frontend {
         };
         let b = self.blocks;
         let i = Self::ring_index(b);
-        if let (Some(r), Some(en), Some(s)) = (
+        if let (Some(r), Some(en), Some(s), Some(pk)) = (
             self.ring.get_mut(i),
             self.energy.get_mut(i),
             self.saturated.get_mut(i),
+            self.peak.get_mut(i),
         ) {
             *r = p;
             *en = e;
             *s = sat;
+            *pk = peak;
         }
         self.blocks += 1;
-        let warm = self.cfg.warmup_blocks.max(self.cfg.detect_blocks) as u64;
-        if self.blocks <= warm {
-            // Seed the floor with the plain mean of the first blocks.
-            self.floor += (e - self.floor) / self.blocks as f32;
+        if self.blocks <= self.settle_until {
+            // The switch transient after a change of setting: not noise, not signal.
+            self.quiet_from = self.blocks;
+            return None;
+        }
+        if self.blocks <= self.warm_until {
+            // Seed the floor with the plain mean of the first blocks (after start-up or
+            // a change of setting, whose noise may differ by orders of magnitude).
+            self.seeded += 1;
+            self.floor += (e - self.floor) / self.seeded as f32;
             self.quiet_from = self.blocks;
             return None;
         }
@@ -295,6 +435,13 @@ impl Frontend {
                         .energy_at(b - w)
                         .min(3.0 * self.floor.max(f32::MIN_POSITIVE));
                     self.floor += self.alpha * (old - self.floor);
+                    // The same block's peak is the noise the setting must hold.
+                    if self.ranger.is_some() {
+                        let t = self.now();
+                        let peak = self.peak_at(b - w);
+                        let d = self.ranger.as_mut().and_then(|r| r.on_quiet(t, peak));
+                        self.ranged(d);
+                    }
                 }
                 None
             }
@@ -313,6 +460,11 @@ impl Frontend {
                     self.stats.truncated += 1;
                     self.stats.pulses += 1;
                     let t0 = first * self.cfg.block_len as u64;
+                    let sat = (first..=b).any(|k| self.saturated_at(k));
+                    let peak = self.peak_over(first, len);
+                    let t = self.now();
+                    let d = self.ranger.as_mut().and_then(|r| r.on_pulse(t, peak, sat));
+                    self.ranged(d);
                     return Some(Pulse {
                         t_s: self.seconds(t0) + 0.5 * len as f32 * self.cfg.block_s(),
                         start_sample: t0,
@@ -340,6 +492,18 @@ impl Frontend {
         self.energy.get(Self::ring_index(b)).copied().unwrap_or(0.0)
     }
 
+    fn saturated_at(&self, b: u64) -> bool {
+        self.saturated
+            .get(Self::ring_index(b))
+            .copied()
+            .unwrap_or(false)
+    }
+
+    /// Largest block peak of blocks `first .. first + len`.
+    fn peak_over(&self, first: u64, len: usize) -> f32 {
+        (first..first + len as u64).fold(0.0f32, |m, k| m.max(self.peak_at(k)))
+    }
+
     fn seconds(&self, sample: u64) -> f32 {
         // f64 keeps the division exact over long sessions; it runs once per pulse.
         let fs = self.cfg.sample_rate_hz as f64;
@@ -361,6 +525,15 @@ impl Frontend {
             self.stats.rejected_short += 1;
             return None;
         }
+        // The pulse is over and nothing of it is left to measure: the moment to change
+        // the setting for the next one.
+        let peak = self.peak_over(first, len);
+        let t = self.now();
+        let d = self
+            .ranger
+            .as_mut()
+            .and_then(|r| r.on_pulse(t, peak, a.saturated));
+        self.ranged(d);
         let l = self.cfg.block_len as u64;
         let start_sample = (first + a.start as u64) * l;
         let t_s = self.seconds(start_sample) + 0.5 * duration_s;

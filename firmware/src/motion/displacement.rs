@@ -152,6 +152,13 @@ pub struct Interval {
 }
 
 impl Interval {
+    /// Moves every stored time stamp `shift_s` s earlier: the clock's epoch moved that
+    /// much later ([`crate::timebase::Epoch`]); durations are left as they are.
+    pub fn rebase(&mut self, shift_s: f32) {
+        self.t0 -= shift_s;
+        self.t_event -= shift_s;
+    }
+
     /// The attitude `R_{W R_{k-1}}` at the start of the interval.
     pub fn start_rotation(&self) -> &Mat3 {
         &self.r0

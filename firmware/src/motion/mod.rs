@@ -266,6 +266,16 @@ struct Cut {
 }
 
 impl Motion {
+    /// Moves every stored time stamp `shift_s` s earlier: the clock's epoch moved that
+    /// much later ([`crate::timebase::Epoch`]); durations are left as they are.
+    pub fn rebase(&mut self, shift_s: f32) {
+        self.det.rebase(shift_s);
+        if let Some(r) = self.run.as_mut() {
+            r.t_last -= shift_s;
+            r.interval.rebase(shift_s);
+        }
+    }
+
     /// A pipeline waiting for its first IMU sample.
     pub fn new(cfg: MotionConfig) -> Self {
         Self {

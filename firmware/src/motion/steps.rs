@@ -98,6 +98,15 @@ pub struct StepDetector {
 }
 
 impl StepDetector {
+    /// Moves every stored time stamp `shift_s` s earlier: the clock's epoch moved that
+    /// much later ([`crate::timebase::Epoch`]); durations are left as they are.
+    pub fn rebase(&mut self, shift_s: f32) {
+        self.t_peak -= shift_s;
+        if let Some(t) = self.last_step.as_mut() {
+            *t -= shift_s;
+        }
+    }
+
     /// A detector for samples arriving at about `rate_hz`.
     pub fn new(cfg: StepDetectorConfig, rate_hz: f32) -> Self {
         Self {

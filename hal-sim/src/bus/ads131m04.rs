@@ -17,13 +17,21 @@
 //!   Every frame clocked while a sample is ready carries it (DRDY then returns high) and
 //!   sets the STATUS DRDY bits; others repeat the last conversion. A host that lags behind
 //!   gets the pending samples one per frame, as if its DRDY interrupt had kept up.
-//! - Codes: `round(v · gain / 1.2 V · 2²³)`, clamped to the 24-bit range (saturation);
-//!   disabled channels (`CLOCK.CHn_EN`) read 0; per-channel PGA gain from `GAIN1`.
+//! - Codes: `round((v + n) · gain / 1.2 V · 2²³)`, clamped to the 24-bit range
+//!   (saturation: full scale is ±1.2 V / gain); disabled channels (`CLOCK.CHn_EN`) read 0;
+//!   per-channel PGA gain from `GAIN1`; `n` the input-referred noise of the gain in use
+//!   (white, per conversion; off unless [`Ads131m04Spi::set_input_noise`] gives it).
+//! - A `GAIN1` write changes the PGA at once, but the sinc³ filter spans three conversion
+//!   periods: the first two conversions after it blend the old and the new gain's codes
+//!   (weights 5/6 and 1/6 of the old: the cumulative sinc³ response at ⅔ and ⅓).
 //!
 //! Not emulated: input CRC, multi-register RREG/WREG (answered for the first register
 //! only), offset/gain calibration and phase registers (stored, no effect), current detect.
 use super::SimClock;
 use super::if_signal::AnalogInput;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
 use std::cell::RefCell;
 use std::convert::Infallible;
 use std::rc::Rc;
@@ -76,6 +84,11 @@ struct Core<A> {
     next_sample: u64,
     last_codes: [i32; 4],
     frames: u64,
+    /// Input noise per PGA gain (V rms, index = gain bits) and its generator.
+    noise: Option<([f64; 8], ChaCha8Rng)>,
+    /// `GAIN1` before the last write and the conversion index the write preceded.
+    old_gain: u16,
+    gain_changed_at: u64,
 }
 
 impl<A: AnalogInput> Core<A> {
@@ -97,6 +110,7 @@ impl<A: AnalogInput> Core<A> {
     fn restart_conversions(&mut self) {
         self.epoch_t = self.clock.now();
         self.next_sample = 0;
+        self.gain_changed_at = u64::MAX;
     }
 
     fn word_bytes(&self) -> usize {
@@ -148,18 +162,40 @@ impl<A: AnalogInput> Core<A> {
     }
 
     fn convert(&mut self) -> [i32; 4] {
-        let t = self.sample_time(self.next_sample);
+        let k = self.next_sample;
+        let t = self.sample_time(k);
         self.next_sample += 1;
         let v = self.input.volts(t);
         let (clock, gain) = (self.regs[REG_CLOCK], self.regs[REG_GAIN1]);
+        // Share of the old gain in this conversion (sinc³ settling after a GAIN1 write).
+        let old_share = match k.checked_sub(self.gain_changed_at) {
+            Some(0) => 5.0 / 6.0,
+            Some(1) => 1.0 / 6.0,
+            _ => 0.0,
+        };
         let mut codes = [0i32; 4];
         for (ch, code) in codes.iter_mut().enumerate() {
             if clock & (1 << (8 + ch)) == 0 {
                 continue;
             }
-            let g = f64::from(1u16 << ((gain >> (4 * ch)) & 0b111));
-            let x = (v[ch] * g / 1.2 * 8_388_608.0).round();
-            *code = x.clamp(-8_388_608.0, 8_388_607.0) as i32;
+            let bits = |reg: u16| usize::from((reg >> (4 * ch)) & 0b111);
+            let n = match &mut self.noise {
+                Some((sigma, rng)) => {
+                    let z: f64 = StandardNormal.sample(rng);
+                    sigma[bits(gain)] * z
+                }
+                None => 0.0,
+            };
+            let code_at = |reg: u16| {
+                let g = f64::from(1u16 << bits(reg));
+                ((v[ch] + n) * g / 1.2 * 8_388_608.0).clamp(-8_388_608.0, 8_388_607.0)
+            };
+            let x = if old_share > 0.0 {
+                old_share * code_at(self.old_gain) + (1.0 - old_share) * code_at(gain)
+            } else {
+                code_at(gain)
+            };
+            *code = x.round() as i32;
         }
         codes
     }
@@ -252,6 +288,13 @@ impl<A: AnalogInput> Core<A> {
                         self.regs[REG_CLOCK] = data;
                         self.restart_conversions();
                     }
+                    REG_GAIN1 => {
+                        if data != self.regs[REG_GAIN1] {
+                            self.old_gain = self.regs[REG_GAIN1];
+                            self.gain_changed_at = self.next_sample;
+                        }
+                        self.regs[REG_GAIN1] = data;
+                    }
                     _ => {
                         if let Some(r) = self.regs.get_mut(addr) {
                             *r = data;
@@ -291,6 +334,9 @@ pub fn ads131m04<A: AnalogInput>(input: A, clock: SimClock) -> (Ads131m04Spi<A>,
         next_sample: 0,
         last_codes: [0; 4],
         frames: 0,
+        noise: None,
+        old_gain: 0,
+        gain_changed_at: u64::MAX,
     };
     core.reset_registers();
     let core = Rc::new(RefCell::new(core));
@@ -306,6 +352,13 @@ impl<A: AnalogInput> Ads131m04Spi<A> {
     /// Frames clocked since power-up.
     pub fn frames(&self) -> u64 {
         self.core.borrow().frames
+    }
+
+    /// Adds the chip's input-referred noise: `v_rms[g]` V rms per conversion at PGA gain
+    /// bits `g` (the board profile's `adc.input_noise_v_rms`), drawn from `seed`.
+    pub fn set_input_noise(&self, v_rms: [f32; 8], seed: u64) {
+        self.core.borrow_mut().noise =
+            Some((v_rms.map(f64::from), ChaCha8Rng::seed_from_u64(seed)));
     }
 }
 
@@ -426,7 +479,15 @@ mod tests {
         adc.set_drdy_poll_limit(1);
         // No time has passed: no conversion yet.
         assert_eq!(adc.wait_data_ready(), Err(Error::Timeout));
-        clock.set(1.0 / 8000.0);
+        clock.set(3.0 / 8000.0);
+        // The first two conversions after the gain write blend the old gain (1) and the
+        // new one (2) with weights 5/6, 1/6 and 1/6, 5/6: read at gain 2, 0.3 V shows as
+        // (5/6 · 0.3 + 1/6 · 0.6) / 2 and then (1/6 · 0.3 + 5/6 · 0.6) / 2.
+        for want in [0.175, 0.275] {
+            let f = adc.read_frame_when_ready().unwrap();
+            let v = adc.to_volts(&f);
+            assert!((v[2] - want).abs() < 1e-6, "{v:?} vs {want}");
+        }
         let f = adc.read_frame_when_ready().unwrap();
         assert!(f.status.data_ready(Channel::Ch0));
         let v = adc.to_volts(&f);
@@ -452,6 +513,57 @@ mod tests {
         adc.unlock().unwrap();
         adc.standby().unwrap();
         adc.wakeup().unwrap();
+    }
+
+    #[test]
+    fn the_pga_sets_full_scale_and_noise_and_clips() {
+        let clock = SimClock::new();
+        // 5 mV: inside full scale up to PGA 128 (9.375 mV), 20 mV clips from PGA 64.
+        let (spi, drdy) = ads131m04(Dc([5e-3, 20e-3, -20e-3, 0.0]), clock.clone());
+        spi.set_input_noise([8e-6, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 2e-6], 7);
+        let mut adc = Ads131m04::new(spi, drdy);
+        adc.reset(&mut NoDelay).unwrap();
+        adc.configure(&Config::default()).unwrap();
+        adc.set_drdy_poll_limit(1);
+        let mut t = 0.0;
+        for (gain, sigma, clip) in [(Gain::G1, 8e-6, false), (Gain::G128, 2e-6, true)] {
+            adc.set_coil_gains(gain).unwrap();
+            assert_eq!(
+                adc.read_register(Register::GAIN1).unwrap() & 0x0FFF,
+                0x111 * gain as u16
+            );
+            let (mut s1, mut s2, mut n) = (0.0, 0.0, 0.0);
+            t += 0.1;
+            clock.set(t);
+            let mut k = 0;
+            while let Ok(f) = adc.read_frame_when_ready() {
+                k += 1;
+                // Skip the sinc³ transient of the gain write.
+                if k <= 2 {
+                    continue;
+                }
+                let v = adc.to_volts(&f);
+                let e = f64::from(v[0]) - 5e-3;
+                s1 += e;
+                s2 += e * e;
+                n += 1.0;
+                assert_eq!(f.saturated.contains(Channel::Ch1), clip);
+                assert_eq!(f.saturated.contains(Channel::Ch2), clip);
+                let fs = gain.full_scale_v();
+                if clip {
+                    assert!(
+                        (v[1] - fs).abs() < 1e-6 && (v[2] + fs).abs() < 1e-6,
+                        "{v:?}"
+                    );
+                }
+            }
+            let sd = (s2 / n - (s1 / n).powi(2)).sqrt();
+            assert!(
+                n > 700.0 && (sd / sigma - 1.0).abs() < 0.1,
+                "gain {gain:?}: σ {sd} vs {sigma}"
+            );
+            assert!((s1 / n).abs() < 4.0 * sigma / n.sqrt(), "unbiased");
+        }
     }
 
     #[test]

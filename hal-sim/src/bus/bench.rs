@@ -8,16 +8,17 @@
 //! a common scale of all three gains) and each jig pose's orientation (0.5° per axis).
 //! The room's EMI is the field's background level (`σ_bkg`); the reference's field is
 //! ≈ 10⁵ times stronger, so it hardly matters.
-use super::ads131m04::{F_CLKIN_HZ, ads131m04};
-use super::if_signal::{AnalogChain, AnalogInput, IF_HZ, sample_sigma};
+use super::SimClock;
+use super::ads131m04::F_CLKIN_HZ;
+use super::antenna::Antenna;
+use super::if_signal::{AnalogChain, AnalogInput, IF_HZ, RangeSwitch, sample_sigma};
 use super::unit::Unit;
-use super::{NoDelay, SimClock};
 use crate::physics::{V3, rotation_from_rpy};
 use anyhow::{Result, anyhow};
 use firmware::board::REFERENCE;
 use firmware::calibration::{AntennaCalibrator, AntennaFit};
-use firmware::drivers::ads131m04::{Ads131m04, Error as AdcError};
-use firmware::frontend::{Calibration, Frontend, PulseMeasurement};
+use firmware::drivers::ads131m04::Gain;
+use firmware::frontend::{Calibration, FrontendConfig, IfRange, PulseMeasurement, Range};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
@@ -66,6 +67,7 @@ pub struct BenchSignal {
     phase: f64,
     sigma_sample: f64,
     noise: ChaCha8Rng,
+    switch: RangeSwitch,
 }
 
 impl BenchSignal {
@@ -86,18 +88,28 @@ impl AnalogInput for BenchSignal {
         };
         let arg = TAU * ((IF_HZ + CARRIER_OFFSET_HZ) * t).fract() + self.phase;
         let c = &self.chain;
+        let range = self.switch.get();
         let mut v = [0.0; 4];
         for (i, out) in v.iter_mut().take(3).enumerate() {
             let n = self.sigma_sample * gauss(&mut self.noise);
-            *out =
-                (h[i] * (arg - c.phase_rad[i]).cos() + n) / c.gain_a_per_m_per_v[i] + c.offset_v[i];
+            *out = (h[i] * (arg - c.lag(i, range)).cos() + n) / c.gain(i, range) + c.offset_v[i];
         }
         v
     }
 }
 
+/// The low range's bench setting: PGA 32 (full scale 9.6e-3 A/m, the reference field at
+/// a sixth of it), the low range's most sensitive rung.
+pub const LOW_RANGE: Range = Range {
+    if_range: IfRange::Low,
+    gain: Gain::G32,
+};
+
 /// One bench session of `unit`, its DSP holding `held`; the bench's own errors and the
-/// noise come from `seed`. Returns the fit.
+/// noise come from `seed`. The poses are measured twice, in the high range (PGA 1) and in
+/// the low range ([`LOW_RANGE`]): the first fit gives the gains and phases, the ratio of
+/// the two the low range's per-coil ratio and extra phase (the reference's moment and
+/// the jig's errors are common to both, so they cancel in the ratio). Returns the fit.
 pub fn bench_calibrate(unit: &Unit, held: &Calibration, seed: u64) -> Result<AntennaFit> {
     let mut r = ChaCha8Rng::seed_from_u64(seed);
     let moment = 1.0 + MOMENT_ERROR_REL * gauss(&mut r);
@@ -109,48 +121,83 @@ pub fn bench_calibrate(unit: &Unit, held: &Calibration, seed: u64) -> Result<Ant
         believed.push(nominal);
         actual.push(rotation_from_rpy(&tilt) * nominal * moment);
     }
-    let pose_s = PERIOD_S * PULSES_PER_POSE as f64;
-    let fs = f64::from(REFERENCE.sample_rate_hz());
-    let mut noise = ChaCha8Rng::seed_from_u64(seed);
-    noise.set_stream(1);
-    let signal = BenchSignal {
-        chain: unit.chain,
-        fields: actual,
-        pose_s,
-        phase: r.random_range(0.0..TAU),
-        sigma_sample: sample_sigma(SIGMA_BKG, fs),
-        noise,
+    let phase = r.random_range(0.0..TAU);
+    let session = Session {
+        unit,
+        believed: &believed,
+        actual: &actual,
+        phase,
+        seed,
     };
-    let clock = SimClock::new();
-    let (spi, drdy) = ads131m04(signal, clock.clone());
-    let mut adc = Ads131m04::new(spi, drdy);
-    adc.reset(&mut NoDelay)
-        .map_err(|e| anyhow!("ADC reset: {e:?}"))?;
-    adc.configure(&REFERENCE.adc.config)
-        .map_err(|e| anyhow!("ADC configure: {e:?}"))?;
-    adc.set_drdy_poll_limit(1);
-    debug_assert_eq!(
-        fs,
-        f64::from(REFERENCE.adc.config.data_rate_hz(F_CLKIN_HZ as f32))
-    );
-    let mut frontend =
-        Frontend::new(REFERENCE.frontend_config(held)).map_err(|e| anyhow!("front end: {e:?}"))?;
-    let mut cal = AntennaCalibrator::new(*held).map_err(|e| anyhow!("calibrator: {e:?}"))?;
-    let end = START_S + pose_s * POSES.len() as f64 + 0.5;
-    let ticks = (end * 100.0).ceil() as u64;
-    for k in 0..=ticks {
-        clock.set(k as f64 / 100.0);
-        loop {
-            let frame = match adc.read_frame_when_ready() {
-                Ok(f) => f,
-                Err(AdcError::Timeout) => break,
-                Err(e) => return Err(anyhow!("ADC read: {e:?}")),
-            };
-            let v = adc.to_volts(&frame);
-            let pulse = frontend
-                .push([v[0], v[1], v[2]], frame.coils_saturated())
-                .map_err(|e| anyhow!("front end: {e:?}"))?;
-            let Some(p) = pulse else { continue };
+    let high = session.run(held, Range::HIGH_G1, 1)?;
+    let low = session.run(&high.calibration, LOW_RANGE, 2)?;
+    let (h, l) = (high.calibration, low.calibration);
+    let mut cal = h;
+    for i in 0..3 {
+        cal.low_range_ratio[i] =
+            h.low_range_ratio[i] * l.gain_a_per_m_per_v[i] / h.gain_a_per_m_per_v[i];
+        cal.low_range_phase_rad[i] = h.low_range_phase_rad[i] + l.phase_rad[i] - h.phase_rad[i];
+    }
+    Ok(AntennaFit {
+        calibration: cal,
+        ..high
+    })
+}
+
+/// What the two sessions of one bench calibration share.
+struct Session<'a> {
+    unit: &'a Unit,
+    believed: &'a [V3],
+    actual: &'a [V3],
+    phase: f64,
+    seed: u64,
+}
+
+impl Session<'_> {
+    /// The poses measured in `range` by a DSP holding `held`; noise stream `stream`.
+    fn run(&self, held: &Calibration, range: Range, stream: u64) -> Result<AntennaFit> {
+        let pose_s = PERIOD_S * PULSES_PER_POSE as f64;
+        let fs = f64::from(REFERENCE.sample_rate_hz());
+        let mut noise = ChaCha8Rng::seed_from_u64(self.seed);
+        noise.set_stream(stream);
+        let switch = RangeSwitch::new();
+        let signal = BenchSignal {
+            chain: self.unit.chain,
+            fields: self.actual.to_vec(),
+            pose_s,
+            phase: self.phase,
+            sigma_sample: sample_sigma(SIGMA_BKG, fs),
+            noise,
+            switch: switch.clone(),
+        };
+        debug_assert_eq!(
+            fs,
+            f64::from(REFERENCE.adc.config.data_rate_hz(F_CLKIN_HZ as f32))
+        );
+        // A fixed setting: the bench measures one range at a time.
+        let fe_cfg = FrontendConfig {
+            range,
+            ranging: None,
+            ..REFERENCE.frontend_config(held)
+        };
+        let clock = SimClock::new();
+        let mut antenna = Antenna::new(
+            signal,
+            switch,
+            clock.clone(),
+            &REFERENCE.adc.config,
+            fe_cfg,
+            self.seed ^ stream.rotate_left(32),
+        )?;
+        let mut cal = AntennaCalibrator::new(*held).map_err(|e| anyhow!("calibrator: {e:?}"))?;
+        let end = START_S + pose_s * POSES.len() as f64 + 0.5;
+        let ticks = (end * 100.0).ceil() as u64;
+        let mut pulses = Vec::new();
+        for k in 0..=ticks {
+            clock.set(k as f64 / 100.0);
+            antenna.drain(|p| pulses.push(p))?;
+        }
+        for p in pulses {
             // Flagged overlaps are kept: an uncalibrated unit's phase errors put energy in
             // quadrature, which is exactly what the fit measures.
             if !matches!(
@@ -160,15 +207,18 @@ pub fn bench_calibrate(unit: &Unit, held: &Calibration, seed: u64) -> Result<Ant
                 continue;
             }
             let pose = ((f64::from(p.t_s) - START_S) / pose_s).floor();
-            let Some(field) = (pose >= 0.0).then(|| believed.get(pose as usize)).flatten() else {
+            let Some(field) = (pose >= 0.0)
+                .then(|| self.believed.get(pose as usize))
+                .flatten()
+            else {
                 continue;
             };
             let field = firmware::Vec3::new(field.x as f32, field.y as f32, field.z as f32);
             cal.push(&field, &p.amplitude)
                 .map_err(|e| anyhow!("calibrator: {e:?}"))?;
         }
+        cal.fit().map_err(|e| anyhow!("bench fit: {e:?}"))
     }
-    cal.fit().map_err(|e| anyhow!("bench fit: {e:?}"))
 }
 
 #[cfg(test)]
@@ -180,6 +230,7 @@ mod tests {
         let nominal = REFERENCE.analog.nominal;
         let (mut worst_scale, mut worst_rel, mut worst_phase) = (0.0f64, 0.0f64, 0.0f64);
         let mut worst_nominal = 0.0f64;
+        let (mut worst_low_ratio, mut worst_low_phase) = (0.0f64, 0.0f64);
         for seed in 1..=8 {
             let unit = Unit::draw(&REFERENCE, seed);
             let fit = bench_calibrate(&unit, &nominal, seed).unwrap();
@@ -205,6 +256,13 @@ mod tests {
                 let dn = (f64::from(nominal.phase_rad[i]) - f64::from(nominal.phase_rad[0]))
                     - (truth.phase_rad[i] - truth.phase_rad[0]);
                 worst_nominal = worst_nominal.max(dn.abs().to_degrees());
+                // The low range relative to the high one, per coil.
+                let lr = f64::from(c.low_range_ratio[i]) / truth.low_range_ratio[i];
+                worst_low_ratio = worst_low_ratio.max((lr - 1.0).abs());
+                let lp = (f64::from(c.low_range_phase_rad[i])
+                    - f64::from(c.low_range_phase_rad[0]))
+                    - (truth.low_range_phase_rad[i] - truth.low_range_phase_rad[0]);
+                worst_low_phase = worst_low_phase.max(lp.abs().to_degrees());
             }
         }
         println!(
@@ -221,5 +279,14 @@ mod tests {
         assert!(worst_rel < 0.015, "relative gain {worst_rel}");
         assert!(worst_phase < 0.1, "phase {worst_phase}°");
         assert!(worst_nominal > 2.0, "the units are off nominal");
+        println!(
+            "low range: worst ratio error {:.3} %, worst relative phase error {worst_low_phase:.3}° \
+             (tolerances 1 %, 1°)",
+            100.0 * worst_low_ratio
+        );
+        // Moment and jig errors cancel in the ratio; the low range's own noise (the ADC's
+        // at PGA 32, ≈ 5e-7 A/m per sample, 3000× under the reference) is what is left.
+        assert!(worst_low_ratio < 0.002, "low-range ratio {worst_low_ratio}");
+        assert!(worst_low_phase < 0.1, "low-range phase {worst_low_phase}°");
     }
 }

@@ -14,18 +14,22 @@
 //! - `g_i`, `lag_i`, `off_i`: each channel's gain (A/m per V), phase lag at the IF and DC
 //!   offset — the unit's actual [`AnalogChain`], drawn about the board profile's nominal
 //!   values ([`super::unit`]); the DSP holds the nominal or a bench calibration, never
-//!   these exact values;
+//!   these exact values. In the low position of the IF range switch ([`RangeSwitch`], a
+//!   GPIO the firmware drives) the gain is `g_i · ratio_i` and the lag `lag_i + lag_low_i`;
 //! - `n(t)`: white EMI background per coil, σ per sample `σ_bkg / √(2/N₇₀)` with
 //!   `N₇₀ = 0.070 s · f_s`: the per-component σ of a 70 ms pulse's demodulated amplitude is
 //!   then `σ_bkg` (the session-log's `pulse_noise.sigma_bkg_A_per_m`), as in the DSP's tests.
 use crate::physics::V3;
 use crate::transmitter::CARRIER_HZ;
 use crate::world::World;
-use firmware::frontend::Calibration;
+use firmware::frontend::{Calibration, IfRange};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
+use std::cell::Cell;
+use std::convert::Infallible;
 use std::f64::consts::TAU;
+use std::rc::Rc;
 
 /// Frequency of the receiver's local oscillator, Hz (457 kHz − 2 kHz).
 pub const LO_HZ: f64 = 455_000.0;
@@ -77,6 +81,65 @@ impl AnalogChain {
     }
 }
 
+impl AnalogChain {
+    /// Field per volt at ADC channel `i` (A/m per V) in IF range `range`.
+    pub fn gain(&self, i: usize, range: IfRange) -> f64 {
+        let g = self.gain_a_per_m_per_v[i];
+        match range {
+            IfRange::High => g,
+            IfRange::Low => g * self.low_range_ratio[i],
+        }
+    }
+
+    /// Phase lag of channel `i` at the IF in range `range`, rad.
+    pub fn lag(&self, i: usize, range: IfRange) -> f64 {
+        let l = self.phase_rad[i];
+        match range {
+            IfRange::High => l,
+            IfRange::Low => l + self.low_range_phase_rad[i],
+        }
+    }
+}
+
+/// The IF amplifier's range switch: a GPIO output of the MCU (high = low range: the
+/// analog switch across the IF amplifier's feedback closes), shared with the signal
+/// source that reads its position. Starts in the high range.
+#[derive(Debug, Clone, Default)]
+pub struct RangeSwitch(Rc<Cell<IfRange>>);
+
+impl RangeSwitch {
+    /// A switch in the high range.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// The switch's position.
+    pub fn get(&self) -> IfRange {
+        self.0.get()
+    }
+
+    /// Moves the switch (what the firmware does through the pin).
+    pub fn set(&self, range: IfRange) {
+        self.0.set(range);
+    }
+}
+
+impl embedded_hal::digital::ErrorType for RangeSwitch {
+    type Error = Infallible;
+}
+
+impl embedded_hal::digital::OutputPin for RangeSwitch {
+    fn set_low(&mut self) -> Result<(), Infallible> {
+        self.set(IfRange::High);
+        Ok(())
+    }
+
+    fn set_high(&mut self) -> Result<(), Infallible> {
+        self.set(IfRange::Low);
+        Ok(())
+    }
+}
+
 /// Per-sample EMI σ (A/m per coil) that gives `sigma_bkg` per component on a 70 ms pulse
 /// sampled at `sample_rate_hz`.
 pub fn sample_sigma(sigma_bkg: f64, sample_rate_hz: f64) -> f64 {
@@ -107,6 +170,7 @@ pub struct IfSignal<'w> {
     noise: ChaCha8Rng,
     phase: Vec<f64>,
     errors: Vec<Option<PulseError>>,
+    switch: RangeSwitch,
 }
 
 fn gauss(rng: &mut ChaCha8Rng) -> f64 {
@@ -143,7 +207,15 @@ impl<'w> IfSignal<'w> {
             noise,
             phase,
             errors: vec![None; world.transmitters.len()],
+            switch: RangeSwitch::new(),
         }
+    }
+
+    /// The same source behind the IF range switch `switch` (by default its own, always in
+    /// the high range).
+    pub fn with_switch(mut self, switch: RangeSwitch) -> Self {
+        self.switch = switch;
+        self
     }
 
     /// The field (A/m, body frame) each coil sees at `t` from every transmitter that is on,
@@ -191,15 +263,16 @@ impl AnalogInput for IfSignal<'_> {
     fn volts(&mut self, t: f64) -> [f64; 4] {
         let sources = self.sources(t);
         let c = self.chain;
+        let range = self.switch.get();
         let mut v = [0.0; 4];
         for (i, out) in v.iter_mut().take(3).enumerate() {
-            let lag = c.phase_rad[i];
+            let lag = c.lag(i, range);
             let field: f64 = sources
                 .iter()
                 .map(|(h, arg)| h[i] * (arg - lag).cos())
                 .sum();
             let n = self.sigma_sample * gauss(&mut self.noise);
-            *out = (field + n) / c.gain_a_per_m_per_v[i] + c.offset_v[i];
+            *out = (field + n) / c.gain(i, range) + c.offset_v[i];
         }
         v
     }

@@ -17,9 +17,11 @@
 //!
 //! All chips run on one [`SimClock`] that the simulation loop advances.
 pub mod ads131m04;
+pub mod antenna;
 pub mod bench;
 pub mod if_signal;
 pub mod imu;
+pub mod near;
 pub mod run;
 pub mod unit;
 

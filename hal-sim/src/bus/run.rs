@@ -11,8 +11,8 @@
 //!   DSP's transmitter tracker when the world has several transmitters. The DSP reports
 //!   each vector with its largest component positive, so the log is always
 //!   sign-ambiguous.
-use super::ads131m04::ads131m04;
-use super::if_signal::IfSignal;
+use super::antenna::Antenna;
+use super::if_signal::{IfSignal, RangeSwitch};
 use super::imu::{ImuBus, ImuSampler};
 use super::unit::Unit;
 use super::{NoDelay, SimClock};
@@ -22,8 +22,7 @@ use crate::sensors::{ImuModel, quantize, round_significant};
 use crate::session::{Imu, Pulse, Session};
 use anyhow::{Context, Result, anyhow};
 use firmware::board::REFERENCE;
-use firmware::drivers::ads131m04::{Ads131m04, Error as AdcError};
-use firmware::frontend::{Calibration, Frontend, FrontendStats};
+use firmware::frontend::{Calibration, FrontendStats, RangeChange};
 
 /// Seed stream of the measurement-level IMU noise (see `scenario::simulate`).
 const IMU_STREAM: u64 = 2;
@@ -32,6 +31,8 @@ const IMU_STREAM: u64 = 2;
 const ANTENNA_SEED: u64 = 0xA27E_77A0_5EED_0005;
 /// Mixed into the scenario seed for the unit's drawn parameters.
 const UNIT_SEED: u64 = 0x0B0A_2D00_5EED_0001;
+/// Mixed into the scenario seed for the ADC's own input noise.
+const ADC_NOISE_SEED: u64 = 0xADC0_4015_5EED_0003;
 /// Mixed into the scenario seed for the unit's bench session.
 const BENCH_SEED: u64 = 0xBE9C_4000_5EED_0002;
 
@@ -75,6 +76,8 @@ pub struct BusRun {
     pub frontend: FrontendStats,
     /// ADC conversions read.
     pub adc_samples: u64,
+    /// The DSP's changes of the analog setting (gain ranging), in order.
+    pub range_changes: Vec<RangeChange>,
     /// I2C transactions with the IMU chips.
     pub i2c_transactions: u64,
 }
@@ -90,9 +93,10 @@ pub fn simulate_bus(cfg: &ScenarioConfig, unit: &Unit, cal: &Calibration) -> Res
     let duration = sim.draw.duration_s;
     let clock = SimClock::new();
 
-    // Antenna ADC.
+    // Antenna: ADC, IF range switch, DSP with gain ranging.
     let adc_cfg = REFERENCE.adc.config;
     let fs = f64::from(adc_cfg.data_rate_hz(super::ads131m04::F_CLKIN_HZ as f32));
+    let switch = RangeSwitch::new();
     let signal = IfSignal::new(
         world,
         unit.chain,
@@ -100,17 +104,16 @@ pub fn simulate_bus(cfg: &ScenarioConfig, unit: &Unit, cal: &Calibration) -> Res
         cfg.sensors.pulse.k_sen,
         fs,
         cfg.seed ^ ANTENNA_SEED,
-    );
-    let (spi, drdy) = ads131m04(signal, clock.clone());
-    let mut adc = Ads131m04::new(spi, drdy);
-    adc.reset(&mut NoDelay)
-        .map_err(|e| anyhow!("ADC reset: {e:?}"))?;
-    adc.check_id().map_err(|e| anyhow!("ADC id: {e:?}"))?;
-    adc.configure(&adc_cfg)
-        .map_err(|e| anyhow!("ADC configure: {e:?}"))?;
-    adc.set_drdy_poll_limit(1);
-    let mut frontend = Frontend::new(REFERENCE.frontend_config(cal))
-        .map_err(|e| anyhow!("frontend configuration: {e:?}"))?;
+    )
+    .with_switch(switch.clone());
+    let mut antenna = Antenna::new(
+        signal,
+        switch,
+        clock.clone(),
+        &adc_cfg,
+        REFERENCE.frontend_config(cal),
+        cfg.seed ^ ADC_NOISE_SEED,
+    )?;
 
     // IMU chips.
     let model = ImuModel::new(cfg.sensors.imu.clone(), stream(cfg.seed, IMU_STREAM));
@@ -125,33 +128,21 @@ pub fn simulate_bus(cfg: &ScenarioConfig, unit: &Unit, cal: &Calibration) -> Res
     let mut pulses = Vec::new();
     // When the front end finished each pulse (the board writes it then).
     let mut written_t = Vec::new();
-    let mut adc_samples = 0u64;
     for k in 0..=n_imu {
         let t = k as f64 / hz;
         clock.set(t);
-        loop {
-            match adc.read_frame_when_ready() {
-                Ok(frame) => {
-                    adc_samples += 1;
-                    let v = adc.to_volts(&frame);
-                    let p = frontend
-                        .push([v[0], v[1], v[2]], frame.coils_saturated())
-                        .map_err(|e| anyhow!("frontend: {e:?}"))?;
-                    if let Some(p) = p
-                        && let Some(h) = p.field()
-                    {
-                        written_t.push(t);
-                        pulses.push(Pulse {
-                            t: quantize(f64::from(p.t_s), 1e4),
-                            h: [0, 1, 2].map(|i| round_significant(f64::from(h[i]), 5)),
-                            src: if several { p.src.map(u32::from) } else { None },
-                        });
-                    }
+        antenna
+            .drain(|p| {
+                if let Some(h) = p.field() {
+                    written_t.push(t);
+                    pulses.push(Pulse {
+                        t: quantize(f64::from(p.t_s), 1e4),
+                        h: [0, 1, 2].map(|i| round_significant(f64::from(h[i]), 5)),
+                        src: if several { p.src.map(u32::from) } else { None },
+                    });
                 }
-                Err(AdcError::Timeout) => break,
-                Err(e) => return Err(anyhow!("ADC read at t = {t} s: {e:?}")),
-            }
-        }
+            })
+            .with_context(|| format!("antenna at t = {t} s"))?;
         let r = imu
             .read()
             .map_err(|e| anyhow!("IMU read at t = {t} s: {e:?}"))?;
@@ -166,6 +157,10 @@ pub fn simulate_bus(cfg: &ScenarioConfig, unit: &Unit, cal: &Calibration) -> Res
     let i2c_transactions = bus.transactions();
     drop(imu);
     drop(bus);
+    let frontend = antenna.frontend.stats();
+    let adc_samples = antenna.samples;
+    let range_changes = std::mem::take(&mut antenna.changes);
+    drop(antenna);
 
     let truth = world.truth_records(cfg.truth_hz, duration, pulses.iter().map(|p| p.t), |t| t);
     let mut header = sim.session.header.clone();
@@ -179,8 +174,9 @@ pub fn simulate_bus(cfg: &ScenarioConfig, unit: &Unit, cal: &Calibration) -> Res
     Ok(BusRun {
         sim,
         measurement,
-        frontend: frontend.stats(),
+        frontend,
         adc_samples,
+        range_changes,
         i2c_transactions,
     })
 }

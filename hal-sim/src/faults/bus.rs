@@ -16,6 +16,7 @@
 use super::super::bus::ads131m04::{F_CLKIN_HZ, ads131m04};
 use super::super::bus::if_signal::{AnalogChain, AnalogInput, IfSignal};
 use super::super::bus::{NoDelay, SimClock};
+use crate::stamp;
 use crate::world::World;
 use embedded_hal::i2c::{ErrorKind as I2cErrorKind, NoAcknowledgeSource};
 use embedded_hal::spi::ErrorKind as SpiErrorKind;
@@ -338,8 +339,7 @@ pub fn adc_window<A: AnalogInput>(
         ..FrontendConfig::default()
     })
     .map_err(|e| anyhow::anyhow!("front end: {e:?}"))?;
-    rx.set_adc_epoch(from_s as f32)
-        .map_err(|e| anyhow::anyhow!("epoch: {e:?}"))?;
+    rx.set_adc_epoch(stamp(from_s));
     let mut out = AdcWindow::default();
     let ticks = ((to_s - from_s) * 100.0).floor() as u64;
     for k in 0..=ticks {

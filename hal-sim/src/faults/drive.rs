@@ -4,6 +4,7 @@ use crate::physics::V3;
 use crate::receiver_config::ReceiverConfig;
 use crate::session::{Record, Session};
 use crate::sog_replay::app_config;
+use crate::stamp;
 use firmware::Vec3;
 use firmware::app::{AppError, AppStats, DisplayModel, Receiver};
 use firmware::estimate::VictimEstimate;
@@ -146,7 +147,7 @@ pub fn drive(
     for r in &session.records {
         match r {
             Record::Imu(s) => {
-                let t = (s.t - t0) as f32;
+                let t = stamp(s.t - t0);
                 let mag = s.mag.as_ref().map(v3);
                 if let Err(e) = rx.on_imu(t, &v3(&s.acc), &v3(&s.gyr), mag.as_ref()) {
                     trace.imu_errors.push((s.t, e));
@@ -161,7 +162,7 @@ pub fn drive(
             }
             Record::Pulse(p) => {
                 let src = p.src.map(|s| u8::try_from(s).unwrap_or(u8::MAX));
-                let result = rx.on_pulse((p.t - t0) as f32, &v3(&p.h), src);
+                let result = rx.on_pulse(stamp(p.t - t0), &v3(&p.h), src);
                 trace.pulses.push(PulseStep {
                     t: p.t,
                     result,

@@ -6,10 +6,12 @@ use super::signature::{self, Signature};
 use crate::receiver_config::ReceiverConfig;
 use crate::session::{Pulse, Record, Session};
 use crate::sog_replay::app_config;
+use crate::stamp;
 use firmware::Vec3;
 use firmware::app::Receiver;
 use firmware::frame::rotation_from_rpy;
 use firmware::motion::{Motion, MotionError};
+use firmware::timebase::Instant;
 use serde::{Deserialize, Serialize};
 
 /// The dead-reckoned position at one pulse, in the log's own frame (start at the origin,
@@ -132,7 +134,7 @@ struct TrackRun {
 impl TrackRun {
     /// Feeds pulse `p` (at `t` s on the receiver's relative clock) and keeps the estimate
     /// with the smallest horizontal σ once the track has [`MIN_PULSES`].
-    fn pulse(&mut self, t: f32, p: &Pulse, dr_index: usize) {
+    fn pulse(&mut self, t: Instant, p: &Pulse, dr_index: usize) {
         self.times.push(p.t);
         // A refused pulse leaves the receiver unchanged (counted by the firmware).
         if self.rx.on_pulse(t, &v3(&p.h), None).is_err() {
@@ -231,7 +233,7 @@ pub fn process(
                     }
                 }
                 for tr in &mut tracks {
-                    let _ = tr.rx.on_imu(t, &acc, &gyr, mag.as_ref());
+                    let _ = tr.rx.on_imu(stamp(s.t - t0), &acc, &gyr, mag.as_ref());
                 }
                 // Long stretches without pulses are cut every second: each interval's
                 // translation is rotated by the attitude at its start, so the absolute
@@ -255,7 +257,7 @@ pub fn process(
                 });
                 let k = labels.binary_search(&p.src.unwrap_or(0)).unwrap_or(0);
                 if let Some(tr) = tracks.get_mut(k) {
-                    tr.pulse(t, p, samples.len() - 1);
+                    tr.pulse(stamp(p.t - t0), p, samples.len() - 1);
                 }
             }
             Record::Truth(_) => {}

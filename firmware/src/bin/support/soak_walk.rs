@@ -18,6 +18,7 @@
 //! with the largest component positive as the front end does (sign-ambiguous).
 use core::f32::consts::TAU;
 use firmware::frame::rotation_from_rpy;
+use firmware::timebase::Instant;
 use firmware::{Vec3, dipole};
 
 /// Standard gravity, m/s².
@@ -92,8 +93,6 @@ impl Rng {
 
 /// One IMU sample in the body frame.
 pub struct ImuSample {
-    /// Time, s.
-    pub t: f32,
     /// Specific force, m/s².
     pub acc: Vec3,
     /// Rate, rad/s.
@@ -146,6 +145,11 @@ impl Walk {
         self.k as f32 * IMU_DT
     }
 
+    /// Time stamp of the last sample (the board's integer clock).
+    pub fn now(&self) -> Instant {
+        Instant::from_micros(u64::from(self.k) * 10_000)
+    }
+
     /// Advances by one IMU period and returns the sample.
     pub fn next_imu(&mut self) -> ImuSample {
         self.k = self.k.wrapping_add(1);
@@ -166,7 +170,6 @@ impl Walk {
         let r_t = rotation_from_rpy(&Vec3::new(0.0, 0.0, self.yaw)).transpose();
         let earth = Vec3::from(EARTH_UT);
         ImuSample {
-            t,
             acc: r_t * a + self.rng.gauss3(SIGMA_ACC),
             gyr: Vec3::new(0.0, 0.0, yaw_rate) + self.rng.gauss3(SIGMA_GYR),
             mag: r_t * earth + self.rng.gauss3(SIGMA_MAG),

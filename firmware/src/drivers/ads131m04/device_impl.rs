@@ -186,6 +186,16 @@ where
         self.write_register(Register::GAIN1, v)
     }
 
+    /// Set the PGA gain of the three coil channels (0–2) at once, keeping channel 3's:
+    /// one `GAIN1` write, so the coils never run at different gains (their relative
+    /// amplitudes are the field's direction). Used by the gain ranging
+    /// ([`crate::frontend::RangeChange`]).
+    pub fn set_coil_gains(&mut self, gain: Gain) -> Res<(), SPI, DRDY> {
+        let g = gain as u16;
+        let v = (self.gain & 0xF000) | g | (g << 4) | (g << 8);
+        self.write_register(Register::GAIN1, v)
+    }
+
     /// Change the SPI word length (takes effect from the next frame).
     pub fn set_word_length(&mut self, wl: WordLength) -> Res<(), SPI, DRDY> {
         let v = (self.mode & !(mode::WLENGTH_MASK << mode::WLENGTH_SHIFT))

@@ -165,6 +165,39 @@ fn set_gain_and_channels_keep_other_fields() {
 }
 
 #[test]
+fn coil_gains_are_one_gain1_write_keeping_the_spare() {
+    let mut t = Vec::new();
+    // Spare (channel 3) to ×4 first: GAIN1 = 0x2000.
+    t.extend(xfer(mosi(W24, &[0x6200, 0x2000]), miso(W24, 0x0500, Z)));
+    t.extend(xfer(mosi(W24, &[0x0000]), miso(W24, 0x4200, Z)));
+    // Coils to ×128 (bits 7): 0x2777, one WREG of GAIN1 and its acknowledgement.
+    t.extend(xfer(mosi(W24, &[0x6200, 0x2777]), miso(W24, 0x0500, Z)));
+    t.extend(xfer(mosi(W24, &[0x0000]), miso(W24, 0x4200, Z)));
+    // …then back to ×1: 0x2000.
+    t.extend(xfer(mosi(W24, &[0x6200, 0x2000]), miso(W24, 0x0500, Z)));
+    t.extend(xfer(mosi(W24, &[0x0000]), miso(W24, 0x4200, Z)));
+    // A refused write leaves the shadow as it was.
+    t.extend(xfer(mosi(W24, &[0x6200, 0x2333]), miso(W24, 0x0500, Z)));
+    t.extend(xfer(mosi(W24, &[0x0000]), miso(W24, 0x0500, Z)));
+    let mut dev = adc(&t, &[]);
+    dev.set_gain(Channel::Ch3, Gain::G4).unwrap();
+    dev.set_coil_gains(Gain::G128).unwrap();
+    for ch in [Channel::Ch0, Channel::Ch1, Channel::Ch2] {
+        assert_eq!(dev.gain(ch), Gain::G128);
+    }
+    assert_eq!(dev.gain(Channel::Ch3), Gain::G4);
+    dev.set_coil_gains(Gain::G1).unwrap();
+    assert_eq!(dev.gain(Channel::Ch1), Gain::G1);
+    assert_eq!(
+        dev.set_coil_gains(Gain::G8),
+        Err(Error::UnexpectedResponse(0x0500))
+    );
+    assert_eq!(dev.gain(Channel::Ch2), Gain::G1);
+    assert_eq!(dev.gain(Channel::Ch3), Gain::G4);
+    done(dev);
+}
+
+#[test]
 fn bad_write_acknowledgement_is_an_error() {
     let mut t = Vec::new();
     t.extend(xfer(mosi(W24, &[0x6200, 0x0001]), miso(W24, 0x0500, Z)));

@@ -431,7 +431,14 @@ mod tests {
     fn the_rbpf_walks_by_its_own_estimate_and_finds_most_victims() {
         // Four seeded tries: every one starts 40–60 m away, every one gets an estimate
         // before the end, and most end within a metre (the paper: 75 of 100).
-        let runs: Vec<IrosRun> = (1..=4).map(|s| run_rbpf(&RBPF_VARIANTS[0], s)).collect();
+        // The particle filter lives on the stack; an unoptimized (test-profile) build needs
+        // more than the test thread's default 2 MiB for it.
+        let runs: Vec<IrosRun> = std::thread::Builder::new()
+            .stack_size(256 << 20)
+            .spawn(|| (1..=4).map(|s| run_rbpf(&RBPF_VARIANTS[0], s)).collect())
+            .expect("spawn the test thread")
+            .join()
+            .expect("the runs finish");
         for r in &runs {
             assert!(START_M.contains(&r.run.start_distance_m), "{r:?}");
             assert!(r.first_estimate_at_m.is_some(), "never estimated: {r:?}");
