@@ -269,9 +269,9 @@ fn predicted_near(tr: &Track, t_s: f32) -> bool {
 }
 
 /// The periods within the standard's range (widened by the period estimate's error,
-/// [`DRIFT_GATE_S`]) of which `span_s` is a whole multiple, 1 ..= [`MAX_MISSED_UNKNOWN`]
-/// + 1 periods, longest first. More than one: the interval does not determine the
-/// period (2.4 s is 2 × 1.2 s or 3 × 0.8 s).
+/// [`DRIFT_GATE_S`]) of which `span_s` is a whole multiple (up to one more than
+/// [`MAX_MISSED_UNKNOWN`] periods), longest first. More than one: the interval does not
+/// determine the period (2.4 s is 2 × 1.2 s or 3 × 0.8 s).
 fn span_candidates(span_s: f32) -> impl Iterator<Item = f32> {
     (1..=MAX_MISSED_UNKNOWN + 1)
         .map(move |k| span_s / k as f32)
