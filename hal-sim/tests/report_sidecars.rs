@@ -16,6 +16,7 @@ const REPORTS: &[&str] = &[
     "multi.md",
     "rescue.md",
     "rescue-seeds1000.md",
+    "baselines.md",
 ];
 
 fn reports_dir() -> PathBuf {
@@ -38,6 +39,7 @@ fn rerun(side: &Sidecar, record: &serde_json::Value) -> serde_json::Value {
         "classic-report" => hal_sim::classic_loop::rerun(record),
         "multi-report" => hal_sim::multi::rerun(record),
         "rescue-report" => hal_sim::rescue_report::rerun(record),
+        "baselines-report" => hal_sim::baselines::record::rerun(record),
         other => panic!("unknown report kind {other}"),
     };
     result.unwrap_or_else(|e| panic!("{}: re-running {record}: {e:#}", side.report))
@@ -87,4 +89,9 @@ fn rescue_report_is_current() {
 #[test]
 fn rescue_report_on_the_second_seed_range_is_current() {
     check_report(REPORTS[4]);
+}
+
+#[test]
+fn baselines_report_is_current() {
+    check_report(REPORTS[5]);
 }
