@@ -1,8 +1,11 @@
 //! `hal-sim`: the receiver's world on a PC.
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
-use hal_sim::receiver_config::ReceiverConfig;
-use hal_sim::{accuracy, budget_data, demo, field_map, inspect, replay, session, simulate};
+use hal_sim::cli::{demo, field_map};
+use hal_sim::eval::{accuracy, budget_data};
+use hal_sim::io::receiver_config::ReceiverConfig;
+use hal_sim::io::{inspect, replay, session};
+use hal_sim::sim::simulate;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
@@ -61,18 +64,18 @@ enum Command {
     /// Sensing at the bus level (emulated chips → firmware drivers → DSP and motion):
     /// motion errors, bus vs measurement pulses, estimator error after replay; a markdown
     /// report.
-    SensingReport(hal_sim::sensing_report::Args),
+    SensingReport(hal_sim::eval::sensing_report::Args),
     /// Seeded closed-loop rescues under the papers' protocol (start 40–70 m away): the
     /// receiver with and without step-length calibration and the classical directional
     /// search, steps and probe-point errors against the ideal walk; a markdown report.
-    RescueReport(hal_sim::rescue_report::Args),
+    RescueReport(hal_sim::eval::rescue_report::Args),
     /// The papers' baselines (LM batch fit, RLS identifier, directional search and the
     /// firmware's baseline filters) beside the SOGs filter on the same seeded scenarios:
     /// a markdown report with PNG plots.
-    BaselinesReport(hal_sim::baselines::report::Args),
+    BaselinesReport(hal_sim::eval::baselines::report::Args),
     /// NEES of the application's estimate (IMU → PDR → SOGs) against the truth over
     /// seeded simulated searches (slides 002 consistency test); a markdown table.
-    Consistency(hal_sim::faults::consistency::Args),
+    Consistency(hal_sim::sensors::faults::consistency::Args),
     /// Simulate a team search (2–4 rescuers, 2–5 victims): one session log per rescuer,
     /// their truth, receiver.json, the start fixes (starts.json) and the team truth.
     TeamScenario(hal_sim::team::ScenarioArgs),
@@ -85,10 +88,10 @@ enum Command {
     /// Seeded multi-victim rescues (2–4 victims, close pairs, long pulse overlaps) with
     /// marking: victims found, per-victim error, time to find all, wrong-victim marks;
     /// a markdown report.
-    MultiReport(hal_sim::multi::Args),
+    MultiReport(hal_sim::sim::multi::Args),
     /// Seeded closed-loop rescues with the receiver in its "classic" mode (the firmware's
     /// classical directional search) beside the idealized DS and the SOG; a markdown report.
-    ClassicReport(hal_sim::classic_loop::Args),
+    ClassicReport(hal_sim::sim::classic_loop::Args),
 }
 
 /// `hal-sim inspect`: streams the log and summarizes each segment.
@@ -167,16 +170,22 @@ fn main() -> Result<()> {
         Command::Accuracy(args) => accuracy::run(&args, &mut stdout.lock()),
         Command::BudgetData(args) => budget_data::run(&args),
         Command::Demo(args) => demo::run(&args, &mut stdout.lock()),
-        Command::SensingReport(args) => hal_sim::sensing_report::run(&args, &mut stdout.lock()),
-        Command::RescueReport(args) => hal_sim::rescue_report::run(&args, &mut stdout.lock()),
-        Command::BaselinesReport(args) => {
-            hal_sim::baselines::report::run(&args, &mut stdout.lock())
+        Command::SensingReport(args) => {
+            hal_sim::eval::sensing_report::run(&args, &mut stdout.lock())
         }
-        Command::Consistency(args) => hal_sim::faults::consistency::run(&args, &mut stdout.lock()),
+        Command::RescueReport(args) => hal_sim::eval::rescue_report::run(&args, &mut stdout.lock()),
+        Command::BaselinesReport(args) => {
+            hal_sim::eval::baselines::report::run(&args, &mut stdout.lock())
+        }
+        Command::Consistency(args) => {
+            hal_sim::sensors::faults::consistency::run(&args, &mut stdout.lock())
+        }
         Command::TeamScenario(args) => hal_sim::team::run_scenario(&args, &mut stdout.lock()),
         Command::TeamMap(args) => hal_sim::team::run_map(&args, &mut stdout.lock()),
         Command::TeamReport(args) => hal_sim::team::report::run(&args, &mut stdout.lock()),
-        Command::MultiReport(args) => hal_sim::multi::report(&args, &mut stdout.lock()),
-        Command::ClassicReport(args) => hal_sim::classic_loop::report(&args, &mut stdout.lock()),
+        Command::MultiReport(args) => hal_sim::sim::multi::report(&args, &mut stdout.lock()),
+        Command::ClassicReport(args) => {
+            hal_sim::sim::classic_loop::report(&args, &mut stdout.lock())
+        }
     }
 }

@@ -5,9 +5,9 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use firmware::drivers::imu::{ACC_LSB_M_S2, GYR_LSB_RAD_S, MAG_LSB_UT};
-use hal_sim::bus::run::{compare_pulses, simulate_bus_default};
-use hal_sim::scenario::{Preset, ScenarioConfig};
-use hal_sim::session::Record;
+use hal_sim::io::session::Record;
+use hal_sim::sensors::bus::run::{compare_pulses, simulate_bus_default};
+use hal_sim::world::scenario::{Preset, ScenarioConfig};
 
 fn config(preset: Preset, seed: u64, victims: usize, max_s: f64) -> ScenarioConfig {
     let mut c = ScenarioConfig::new(preset, seed);
@@ -153,7 +153,7 @@ fn bus_level_never_reports_a_wrong_vector_under_overlaps() {
         let n_tx = world.transmitters.len();
         for pulse in run.sim.session.pulses() {
             vectors += 1;
-            let h = hal_sim::physics::V3::from(pulse.h);
+            let h = hal_sim::world::physics::V3::from(pulse.h);
             let on: Vec<usize> = (0..n_tx)
                 .filter(|&i| world.transmitter_on(i, pulse.t))
                 .collect();

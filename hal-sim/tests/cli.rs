@@ -43,12 +43,12 @@ fn simulate_inspect_replay() {
         receiver.to_str().unwrap(),
     ]);
     assert!(out.status.success(), "{}", text(&out.stderr));
-    let session = hal_sim::session::read_file(&log).unwrap();
+    let session = hal_sim::io::session::read_file(&log).unwrap();
     let lines: Vec<String> = text(&out.stdout).lines().map(String::from).collect();
     assert_eq!(lines.len(), session.pulses().count());
     let mut initialized = false;
     for (line, pulse) in lines.iter().zip(session.pulses()) {
-        let v: hal_sim::replay::ReplayLine = serde_json::from_str(line).unwrap();
+        let v: hal_sim::io::replay::ReplayLine = serde_json::from_str(line).unwrap();
         assert_eq!(v.t, pulse.t);
         // Once the estimator holds a belief it reports one victim on every later pulse.
         assert!(v.victims.len() <= 1);

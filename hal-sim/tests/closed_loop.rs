@@ -1,7 +1,7 @@
 //! Seeded closed-loop rescues with the firmware's application in the loop: the simulated
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 //! rescuer follows the display until "probe here".
-use hal_sim::closed_loop::{ClosedLoopConfig, run};
+use hal_sim::sim::closed_loop::{ClosedLoopConfig, run};
 
 #[test]
 fn three_seeded_rescues_reach_probe_near_the_victim() {
@@ -11,7 +11,7 @@ fn three_seeded_rescues_reach_probe_near_the_victim() {
             statuses.push(row.status)
         })
         .expect("run");
-        let summary = hal_sim::demo::summary(&o);
+        let summary = hal_sim::cli::demo::summary(&o);
         assert!(o.probe_t.is_some(), "{summary}");
         assert!(o.path_ratio() <= 3.0, "{summary}");
         // A sanity bound of a working loop (a wrong mode or a lost estimate is metres off),

@@ -70,7 +70,7 @@ fn replay_reports_the_display_status() {
     assert!(out.status.success());
     let mut statuses = std::collections::BTreeSet::new();
     for line in String::from_utf8_lossy(&out.stdout).lines() {
-        let v: hal_sim::replay::ReplayLine = serde_json::from_str(line).unwrap();
+        let v: hal_sim::io::replay::ReplayLine = serde_json::from_str(line).unwrap();
         let s = v.status.expect("status on every line");
         assert!(["searching", "flux-line", "localized", "probe"].contains(&s.as_str()));
         if s != "searching" {

@@ -1,8 +1,8 @@
 //! The board's session-log writer (`firmware::session_log`) produces logs that `hal-sim`
 //! (and any tool following the spec) reads back with the same values.
 use firmware::{Vec3, session_log};
-use hal_sim::scenario::{Preset, ScenarioConfig, simulate};
-use hal_sim::session::{self, Record};
+use hal_sim::io::session::{self, Record};
+use hal_sim::world::scenario::{Preset, ScenarioConfig, simulate};
 
 fn v(a: &[f64; 3]) -> Vec3 {
     Vec3::new(a[0] as f32, a[1] as f32, a[2] as f32)

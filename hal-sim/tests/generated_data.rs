@@ -1,13 +1,13 @@
 //! Physics and statistics of the generated data.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
-use hal_sim::physics::{M3, V3, exp_so3, rotation_from_rpy};
-use hal_sim::receiver_config::PulseNoise;
-use hal_sim::rescuer::{GaitParams, HoldParams, Plan, Rescuer};
-use hal_sim::scenario::{Preset, ScenarioConfig, simulate};
+use hal_sim::io::receiver_config::PulseNoise;
+use hal_sim::io::session::{Record, read};
 use hal_sim::sensors::{ImuModel, PulseModel, SensorConfig};
-use hal_sim::session::{Record, read};
-use hal_sim::transmitter::{CARRIER_HZ, MIN_ON_TIME_S, PERIOD_RANGE_S, Transmitter};
 use hal_sim::world::World;
+use hal_sim::world::physics::{M3, V3, exp_so3, rotation_from_rpy};
+use hal_sim::world::rescuer::{GaitParams, HoldParams, Plan, Rescuer};
+use hal_sim::world::scenario::{Preset, ScenarioConfig, simulate};
+use hal_sim::world::transmitter::{CARRIER_HZ, MIN_ON_TIME_S, PERIOD_RANGE_S, Transmitter};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -216,7 +216,7 @@ fn imu_noise_statistics_and_bias_match_the_configuration() {
     let samples: Vec<_> = (0..n)
         .map(|k| imu.sample(&world, k as f64 * 0.01))
         .collect();
-    let stats = |f: &dyn Fn(&hal_sim::session::Imu) -> f64| {
+    let stats = |f: &dyn Fn(&hal_sim::io::session::Imu) -> f64| {
         let mean = samples.iter().map(f).sum::<f64>() / n as f64;
         let var = samples.iter().map(|s| (f(s) - mean).powi(2)).sum::<f64>() / n as f64;
         (mean, var.sqrt())

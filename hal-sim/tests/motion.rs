@@ -9,9 +9,9 @@
 use firmware::Vec3;
 use firmware::frame::{rpy_from_rotation, wrap_pi};
 use firmware::motion::{Motion, MotionConfig};
-use hal_sim::physics::{M3, V3};
-use hal_sim::scenario::{Preset, ScenarioConfig, simulate};
-use hal_sim::session::Record;
+use hal_sim::io::session::Record;
+use hal_sim::world::physics::{M3, V3};
+use hal_sim::world::scenario::{Preset, ScenarioConfig, simulate};
 
 struct WalkStats {
     name: String,
@@ -37,7 +37,11 @@ fn f32m(m: &M3) -> firmware::Mat3 {
 
 /// Horizontal position of the walker's torso from the receiver's truth (removes the hold
 /// offset; sway and hand wobble of a centimetre or two remain).
-fn torso(world: &hal_sim::world::World, hold: &hal_sim::rescuer::HoldParams, t: f64) -> [f64; 2] {
+fn torso(
+    world: &hal_sim::world::World,
+    hold: &hal_sim::world::rescuer::HoldParams,
+    t: f64,
+) -> [f64; 2] {
     let s = world.rescuer_state(t);
     let (sn, cs) = s.heading.sin_cos();
     [

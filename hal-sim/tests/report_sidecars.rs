@@ -6,7 +6,7 @@
 
 #![allow(clippy::panic, clippy::unwrap_used, clippy::expect_used)]
 
-use hal_sim::sidecar::{self, Sidecar};
+use hal_sim::eval::sidecar::{self, Sidecar};
 use std::path::{Path, PathBuf};
 
 /// The reports that carry a sidecar.
@@ -34,10 +34,11 @@ fn load(name: &str) -> (String, Sidecar) {
 
 fn rerun(side: &Sidecar, record: &serde_json::Value) -> serde_json::Value {
     let result = match side.report.as_str() {
-        "accuracy" => hal_sim::accuracy::rerun(record),
-        "classic-report" => hal_sim::classic_loop::rerun(record),
-        "multi-report" => hal_sim::multi::rerun(record),
-        "rescue-report" => hal_sim::rescue_report::rerun(record),
+        "accuracy" => hal_sim::eval::accuracy::rerun(record),
+        "classic-report" => hal_sim::sim::classic_loop::rerun(record),
+        "multi-report" => hal_sim::sim::multi::rerun(record),
+        "rescue-report" => hal_sim::eval::rescue_report::rerun(record),
+        "baselines-report" => hal_sim::eval::baselines::record::rerun(record),
         other => panic!("unknown report kind {other}"),
     };
     result.unwrap_or_else(|e| panic!("{}: re-running {record}: {e:#}", side.report))

@@ -100,16 +100,16 @@ fn all_finite<'a>(v: impl IntoIterator<Item = &'a f32>) -> bool {
 
 // --- session_log_reader -----------------------------------------------------------------
 
-/// `hal_sim::session::read` on arbitrary bytes: never panics; a log it accepts has a
+/// `hal_sim::io::session::read` on arbitrary bytes: never panics; a log it accepts has a
 /// version-1 header and survives a write/read round trip.
 pub fn session_log_reader(data: &[u8]) {
-    let Ok(s) = hal_sim::session::read(data) else {
+    let Ok(s) = hal_sim::io::session::read(data) else {
         return;
     };
-    assert_eq!(s.header.format, hal_sim::session::FORMAT);
+    assert_eq!(s.header.format, hal_sim::io::session::FORMAT);
     let mut out = Vec::new();
     s.write(&mut out).expect("writing to a Vec");
-    let again = hal_sim::session::read(out.as_slice()).expect("re-reading what was written");
+    let again = hal_sim::io::session::read(out.as_slice()).expect("re-reading what was written");
     assert_eq!(again.records.len(), s.records.len());
 }
 

@@ -1,4 +1,4 @@
-//! Fault injection (issue 10): each fault of `hal_sim::faults` with its defined behaviour,
+//! Fault injection (issue 10): each fault of `hal_sim::sensors::faults` with its defined behaviour,
 //! on seeded runs of the real `firmware::app::Receiver` (and the real drivers over the
 //! emulated buses for the bus faults). The table is in `hal-sim/reports/reliability.md`.
 //!
@@ -11,19 +11,19 @@ use firmware::app::{AppConfig, AppError, Receiver};
 use firmware::drivers::imu::{Chip, Imu, ImuError};
 use firmware::guidance::Status;
 use firmware::motion::MotionError;
-use hal_sim::bus::imu::{ImuBus, ImuSampler};
-use hal_sim::bus::{NoDelay, SimClock};
-use hal_sim::faults::bus::{
+use hal_sim::io::session::Session;
+use hal_sim::sensors::ImuModel;
+use hal_sim::sensors::bus::imu::{ImuBus, ImuSampler};
+use hal_sim::sensors::bus::{NoDelay, SimClock};
+use hal_sim::sensors::faults::bus::{
     AdcWindow, Disturbance, Disturbed, FaultWindow, FaultyI2c, I2cFault, PulseKind, SpiFault,
     adc_window, antenna,
 };
-use hal_sim::faults::drive::{Trace, drive};
-use hal_sim::faults::measurement;
-use hal_sim::faults::stationary::{self, Stand};
-use hal_sim::scenario::{Preset, ScenarioConfig, Simulation, simulate, stream};
-use hal_sim::sensors::ImuModel;
-use hal_sim::session::Session;
+use hal_sim::sensors::faults::drive::{Trace, drive};
+use hal_sim::sensors::faults::measurement;
+use hal_sim::sensors::faults::stationary::{self, Stand};
 use hal_sim::stamp;
+use hal_sim::world::scenario::{Preset, ScenarioConfig, Simulation, simulate, stream};
 
 /// The issue's accuracy target at the end of a search, m.
 const TARGET_M: f64 = 1.0;
@@ -256,7 +256,7 @@ fn a_localized_victim_that_falls_silent_is_pointed_at_as_the_rescuer_walks_on() 
     // which a walk of a few metres turns away from the victim).
     let sim = search(24);
     let clean = run(&sim, &sim.session);
-    let localized = |p: &&hal_sim::faults::drive::PulseStep| {
+    let localized = |p: &&hal_sim::sensors::faults::drive::PulseStep| {
         p.result
             .as_ref()
             .is_ok_and(|d| d.status == Status::Localized)
@@ -293,7 +293,7 @@ fn a_localized_victim_that_falls_silent_is_pointed_at_as_the_rescuer_walks_on() 
         walked_m = walked_m.max((pose.p[0] - at_last.p[0]).hypot(pose.p[1] - at_last.p[1]));
         let arrow = d.display.arrow_deg.expect("an arrow to the estimate");
         let shown = pose.rpy[2] + f64::from(arrow).to_radians();
-        let off = hal_sim::rescuer::wrap_pi(shown - dy.atan2(dx)).to_degrees();
+        let off = hal_sim::world::rescuer::wrap_pi(shown - dy.atan2(dx)).to_degrees();
         let walk = f64::from(d.display.walk_m.expect("the walk to it"));
         // The dead reckoning's scale error grows with the walk (≈ 2.5 % here): the point
         // shown may be that far off, which turns the arrow by up to its angle at `dist`.
@@ -436,7 +436,7 @@ fn victim_directly_below_is_localized_without_nan() {
 /// pulses) and a fresh receiver with its configuration.
 fn bus_world(seed: u64) -> (Simulation, Box<Receiver>) {
     let sim = search(seed);
-    let cfg = hal_sim::sog_replay::app_config(&sim.session.header, &sim.receiver);
+    let cfg = hal_sim::io::sog_replay::app_config(&sim.session.header, &sim.receiver);
     (sim, Box::new(Receiver::new(cfg).unwrap()))
 }
 
@@ -448,7 +448,7 @@ fn window_with(
     span: (f64, f64),
 ) -> AdcWindow {
     let cfg = &sim.draw.config;
-    let unit = hal_sim::bus::run::scenario_unit(cfg.seed);
+    let unit = hal_sim::sensors::bus::run::scenario_unit(cfg.seed);
     let signal = antenna(
         &sim.world,
         unit.chain,
@@ -459,9 +459,9 @@ fn window_with(
     adc_window(
         Disturbed::new(signal, disturbances, cfg.seed ^ 0xD15),
         // The shipped unit: its bench calibration, not its chain's exact values.
-        &hal_sim::bus::run::scenario_calibration(
+        &hal_sim::sensors::bus::run::scenario_calibration(
             cfg.seed,
-            hal_sim::bus::run::UnitCalibration::Bench,
+            hal_sim::sensors::bus::run::UnitCalibration::Bench,
         )
         .unwrap(),
         span,
@@ -616,9 +616,9 @@ fn emi_burst_gives_no_false_vectors_and_the_floor_recovers() {
     // vectors; after the burst the floor comes down and field pulses resume.
     let (sim, mut rx) = bus_world(45);
     let (a, b) = span_end(&sim);
-    let chain = hal_sim::bus::run::scenario_unit(sim.draw.config.seed).chain;
+    let chain = hal_sim::sensors::bus::run::scenario_unit(sim.draw.config.seed).chain;
     let sigma_v = 300.0
-        * hal_sim::bus::if_signal::sample_sigma(
+        * hal_sim::sensors::bus::if_signal::sample_sigma(
             sim.draw.config.sensors.pulse.sigma_bkg_a_per_m,
             8000.0,
         )
@@ -663,7 +663,7 @@ fn imu_i2c_errors_are_reported_skipped_and_bridged() {
     let clock = SimClock::new();
     let model = ImuModel::new(sim.draw.config.sensors.imu.clone(), stream(46, 2));
     let bus = ImuBus::new(ImuSampler::new(&sim.world, model), clock.clone());
-    let cfg = hal_sim::sog_replay::app_config(&sim.session.header, &sim.receiver);
+    let cfg = hal_sim::io::sog_replay::app_config(&sim.session.header, &sim.receiver);
     let mut yaws = Vec::new();
     for (window, kind) in [
         (FaultWindow::none(), I2cFault::Nack),
@@ -753,7 +753,7 @@ fn imu_not_answering_at_start_up_is_an_init_error() {
     ));
     // Without IMU samples the application still takes pulses (zero displacement).
     let mut rx = Box::new(
-        Receiver::new(hal_sim::sog_replay::app_config(
+        Receiver::new(hal_sim::io::sog_replay::app_config(
             &sim.session.header,
             &sim.receiver,
         ))
@@ -775,7 +775,7 @@ fn the_board_path_flags_a_withheld_pulse_too() {
     // and reports a withheld pulse with `on_withheld`: same flag and counter as
     // `on_adc_sample`, cleared by the next field pulse.
     let sim = search(48);
-    let cfg = hal_sim::sog_replay::app_config(&sim.session.header, &sim.receiver);
+    let cfg = hal_sim::io::sog_replay::app_config(&sim.session.header, &sim.receiver);
     let mut rx = Box::new(Receiver::new(cfg).unwrap());
     let p = sim.session.pulses().next().unwrap();
     let d = rx.on_withheld(stamp(p.t - 0.5));

@@ -10,8 +10,8 @@
 //! 3–5 m after 25–40 m walks), worst ≈ 15 %; truth inside 3σ in 19–20 of 20.
 // Test code: a failed step is a failed test.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
-use hal_sim::receiver_config::ReceiverConfig;
-use hal_sim::replay::{ReplayLine, replay_with_config};
+use hal_sim::io::receiver_config::ReceiverConfig;
+use hal_sim::io::replay::{ReplayLine, replay_with_config};
 use std::path::Path;
 use std::process::Command;
 
@@ -50,7 +50,7 @@ fn truth_at(dir: &Path, t: f64) -> ([f64; 3], [f64; 3]) {
 fn replay_and_score(seed: u32, extra: &[&str]) -> Scored {
     let dir = std::env::temp_dir().join(format!("independent-log-{}-{seed}", std::process::id()));
     generate(seed, &dir, extra);
-    let session = hal_sim::session::read_file(&dir.join("session.jsonl")).unwrap();
+    let session = hal_sim::io::session::read_file(&dir.join("session.jsonl")).unwrap();
     assert!(
         !session.warnings.is_empty(),
         "the unknown record type is skipped with a warning"

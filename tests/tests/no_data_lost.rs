@@ -6,17 +6,17 @@
 //! The test runs a seeded search through that loop — write the record with the
 //! firmware's writer to an unbuffered file, then give it to `app::Receiver` — and makes
 //! the processing crash (a panic, caught with `catch_unwind`) at a seeded record. The log
-//! read back with `hal_sim::session::read` must hold every record up to and including the
+//! read back with `hal_sim::io::session::read` must hold every record up to and including the
 //! one being processed, value for value as the writer's `f32`s.
 // Test code: a failed unwrap or a panic is a failed test, the right report.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 use firmware::Vec3;
 use firmware::app::Receiver;
 use firmware::session_log::{self, LogError};
-use hal_sim::scenario::{Preset, ScenarioConfig, simulate};
-use hal_sim::session::{Record, read_file};
-use hal_sim::sog_replay::app_config;
+use hal_sim::io::session::{Record, read_file};
+use hal_sim::io::sog_replay::app_config;
 use hal_sim::stamp;
+use hal_sim::world::scenario::{Preset, ScenarioConfig, simulate};
 use std::io::Write as _;
 use std::panic::{AssertUnwindSafe, catch_unwind};
 

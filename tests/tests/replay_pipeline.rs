@@ -1,8 +1,8 @@
 //! End to end on the PC: a seeded simulated search → session log → `replay` through the
 //! firmware's own pipeline (attitude, PDR, SOGs filter) → the estimate at the last pulse
 //! compared with the simulator's ground truth.
-use hal_sim::replay::{ReplayLine, replay_with_config};
-use hal_sim::scenario::{Preset, ScenarioConfig, simulate};
+use hal_sim::io::replay::{ReplayLine, replay_with_config};
+use hal_sim::world::scenario::{Preset, ScenarioConfig, simulate};
 
 #[test]
 fn replay_of_simulated_searches_finds_the_victim() {
@@ -10,7 +10,7 @@ fn replay_of_simulated_searches_finds_the_victim() {
     for seed in [3, 7, 11] {
         let sim = simulate(&ScenarioConfig::new(Preset::Paper, seed));
         // Round trip through the log bytes, as an outside tool would hand them over.
-        let session = hal_sim::session::read(sim.session_bytes().as_slice()).unwrap();
+        let session = hal_sim::io::session::read(sim.session_bytes().as_slice()).unwrap();
         let mut out = Vec::new();
         let lines = replay_with_config(&session, &sim.receiver, &mut out).unwrap();
         assert_eq!(lines, session.pulses().count());

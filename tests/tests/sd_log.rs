@@ -10,10 +10,10 @@ use embedded_sdmmc::{Mode, VolumeIdx, VolumeManager};
 use firmware::Vec3;
 use firmware::board::sd_log::{FixedTime, RamCard, SdLog};
 use firmware::session_log::Recorder;
-use hal_sim::receiver_config::ReceiverConfig;
-use hal_sim::replay::{StreamOptions, replay_stream};
-use hal_sim::scenario::{Preset, ScenarioConfig, simulate};
-use hal_sim::session::Record;
+use hal_sim::io::receiver_config::ReceiverConfig;
+use hal_sim::io::replay::{StreamOptions, replay_stream};
+use hal_sim::io::session::Record;
+use hal_sim::world::scenario::{Preset, ScenarioConfig, simulate};
 use std::io::Cursor;
 
 /// First block of the card's partition.

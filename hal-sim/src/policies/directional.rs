@@ -15,7 +15,7 @@
 //! weaker) and stopped two points after the maximum; "found" is the strongest point of
 //! the last line. Without the cross search ([`DsConfig::cross_search`] off) the search
 //! ends where the fine search would start.
-use crate::physics::V3;
+use crate::world::physics::V3;
 use std::f64::consts::PI;
 
 /// When the secondary search reverses along the flux line.
@@ -295,7 +295,7 @@ impl DirectionalSearch {
         let d = [f64::from(d[0]), f64::from(d[1])];
         self.dir = Some(d);
         let psi = d[1].atan2(d[0]);
-        let off = crate::rescuer::wrap_pi(psi - view.heading).abs();
+        let off = crate::world::rescuer::wrap_pi(psi - view.heading).abs();
         Some(DsCommand::Heading {
             psi,
             walk: off <= TURN_ON_SPOT_RAD,

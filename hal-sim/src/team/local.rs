@@ -3,9 +3,9 @@
 //! `firmware::app::Receiver`) run once per `src` track, giving each track's best victim
 //! estimate relative to the receiver and its signature.
 use super::signature::{self, Signature};
-use crate::receiver_config::ReceiverConfig;
-use crate::session::{Pulse, Record, Session};
-use crate::sog_replay::app_config;
+use crate::io::receiver_config::ReceiverConfig;
+use crate::io::session::{Pulse, Record, Session};
+use crate::io::sog_replay::app_config;
 use crate::stamp;
 use firmware::Vec3;
 use firmware::app::Receiver;
@@ -282,7 +282,7 @@ pub fn process(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scenario::{Preset, ScenarioConfig, simulate};
+    use crate::world::scenario::{Preset, ScenarioConfig, simulate};
 
     /// A single-transmitter log (no `src`, as `simulate` writes it): one track, localized,
     /// with a period signature equal to the transmitter's; the dead-reckoned end point is
@@ -330,7 +330,11 @@ mod tests {
 
     #[test]
     fn an_empty_log_gives_an_empty_run() {
-        let s = Session::new(crate::session::Header::new(100.0, [21.0, 0.0, -42.0], true));
+        let s = Session::new(crate::io::session::Header::new(
+            100.0,
+            [21.0, 0.0, -42.0],
+            true,
+        ));
         let run = process(&s, &ReceiverConfig::default(), |_, _| {}).unwrap();
         assert!(run.dr.is_empty() && run.tracks.is_empty());
     }

@@ -15,7 +15,7 @@ pub mod report;
 pub mod scenario;
 pub mod signature;
 
-use crate::receiver_config::ReceiverConfig;
+use crate::io::receiver_config::ReceiverConfig;
 use anyhow::Context;
 use std::path::{Path, PathBuf};
 
@@ -59,7 +59,7 @@ pub struct MapArgs {
 
 /// Processes every log (in parallel), printing progress on stderr.
 pub fn process_logs(
-    logs: &[(crate::session::Session, ReceiverConfig)],
+    logs: &[(crate::io::session::Session, ReceiverConfig)],
 ) -> anyhow::Result<Vec<local::LocalRun>> {
     use rayon::prelude::*;
     logs.par_iter()
@@ -105,7 +105,8 @@ pub fn run_scenario(args: &ScenarioArgs, out: &mut impl std::io::Write) -> anyho
 pub fn run_map(args: &MapArgs, out: &mut impl std::io::Write) -> anyhow::Result<()> {
     let mut logs = Vec::new();
     for p in &args.logs {
-        let s = crate::session::read_file(p).with_context(|| format!("reading {}", p.display()))?;
+        let s =
+            crate::io::session::read_file(p).with_context(|| format!("reading {}", p.display()))?;
         for w in &s.warnings {
             eprintln!("warning: {}: {w}", p.display());
         }
@@ -226,11 +227,11 @@ mod tests {
             &std::fs::read_to_string(dir.path().join("team-truth.json")).unwrap(),
         )
         .unwrap();
-        let truths: Vec<crate::session::Session> = logs
+        let truths: Vec<crate::io::session::Session> = logs
             .iter()
-            .map(|p| crate::session::read_file(&p.with_file_name("truth.jsonl")).unwrap())
+            .map(|p| crate::io::session::read_file(&p.with_file_name("truth.jsonl")).unwrap())
             .collect();
-        let refs: Vec<&crate::session::Session> = truths.iter().collect();
+        let refs: Vec<&crate::io::session::Session> = truths.iter().collect();
         let sc = report::score(&truth, &refs, &m);
         assert_eq!(sc.association.0, sc.association.1);
         let localized: Vec<_> = sc.victims.iter().filter(|v| v.joint_m.is_some()).collect();

@@ -2,8 +2,8 @@
 //! corrected tracks (rescuer colours), victims with 2σ ellipses and labels, and when the
 //! truth is known the true victims (black crosses) and true tracks (grey).
 use super::map::TeamMap;
-use crate::demo::{ellipse_n, en, write_png};
-use crate::plot::{self, FONT};
+use crate::cli::demo::{ellipse_n, en, write_png};
+use crate::eval::plot::{self, FONT};
 use anyhow::Result;
 use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;

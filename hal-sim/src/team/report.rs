@@ -5,7 +5,7 @@
 use super::map::{MapOptions, TeamMap};
 use super::scenario::{TeamConfig, TeamSim, TeamTruth};
 use super::{local, map, plot, scenario};
-use crate::session::Session;
+use crate::io::session::Session;
 use anyhow::Context;
 use std::fmt::Write as _;
 use std::path::PathBuf;

@@ -9,12 +9,12 @@
 //!   and association must go by signature;
 //! - each rescuer's start is known only from a GNSS fix with σ = `start_fix_sigma_m`
 //!   (`starts.json`, the only shared input besides the logs).
-use crate::receiver_config::{Pdr, ReceiverConfig};
-use crate::rescuer::{GaitParams, Plan, Rescuer, Waypoint, wrap_pi};
-use crate::scenario::{draw_person, merge, stream};
+use crate::io::receiver_config::{Pdr, ReceiverConfig};
+use crate::io::session::{Header, Imu, Pulse, Session};
 use crate::sensors::{ImuModel, PulseModel, SensorConfig, quantize, round_significant};
-use crate::session::{Header, Imu, Pulse, Session};
-use crate::transmitter::{Transmitter, TransmitterSpec};
+use crate::world::rescuer::{GaitParams, Plan, Rescuer, Waypoint, wrap_pi};
+use crate::world::scenario::{draw_person, merge, stream};
+use crate::world::transmitter::{Transmitter, TransmitterSpec};
 use crate::world::{World, earth_field_ut};
 use anyhow::Context;
 use rand::Rng;
@@ -389,7 +389,7 @@ pub fn simulate(cfg: &TeamConfig) -> TeamSim {
 
 fn write_log(s: &Session, path: &Path) -> anyhow::Result<()> {
     use std::io::Write;
-    let mut f = crate::session::create_file(path)
+    let mut f = crate::io::session::create_file(path)
         .with_context(|| format!("creating {}", path.display()))?;
     s.write(&mut f)?;
     f.flush()?;

@@ -79,12 +79,12 @@ fn receiver_text(b: &mut Bytes) -> String {
     Value::Object(root).to_string()
 }
 
-/// `hal_sim::receiver_config::ReceiverConfig::from_json` on arbitrary text (raw bytes, or
+/// `hal_sim::io::receiver_config::ReceiverConfig::from_json` on arbitrary text (raw bytes, or
 /// an object of the known keys with fuzzed values and kinds). Checks: no panic; an
 /// accepted configuration validates, survives a write/read round trip, and the firmware's
 /// pipeline accepts it (a configuration the checks let through must be runnable).
 pub fn receiver_json(data: &[u8]) {
-    use hal_sim::receiver_config::ReceiverConfig;
+    use hal_sim::io::receiver_config::ReceiverConfig;
     let mut b = Bytes::new(data);
     let text = receiver_text(&mut b);
     let Ok(c) = ReceiverConfig::from_json(&text) else {
@@ -93,8 +93,8 @@ pub fn receiver_json(data: &[u8]) {
     assert_eq!(c.validate(), Ok(()), "{text}");
     let back = ReceiverConfig::from_json(&c.to_json()).expect("re-reading what was written");
     assert_eq!(back, c, "{text}");
-    let header = hal_sim::session::Header::new(100.0, [20.0, -1.0, -44.0], c.sign_ambiguous);
-    if let Err(e) = hal_sim::sog_replay::SogReplay::new(&header, &c) {
+    let header = hal_sim::io::session::Header::new(100.0, [20.0, -1.0, -44.0], c.sign_ambiguous);
+    if let Err(e) = hal_sim::io::sog_replay::SogReplay::new(&header, &c) {
         panic!("a validated receiver.json is refused by the firmware: {e}\n{text}");
     }
 }
@@ -230,14 +230,14 @@ fn replay_log(b: &mut Bytes) -> Vec<u8> {
     s.into_bytes()
 }
 
-/// The whole replay path — `hal_sim::session::Reader` + the replay adapter + the firmware's
+/// The whole replay path — `hal_sim::io::session::Reader` + the replay adapter + the firmware's
 /// application — on a fuzzed log (structured, see `replay_log`, or raw bytes after the
 /// first byte when it is odd) with the default `receiver.json` or a fuzzed one. Checks: no
 /// panic; exactly one output line per pulse answered; every line is valid replay JSON with
 /// finite numbers (serde_json writes NaN as `null`, which fails to parse back as `f64`).
 pub fn replay(data: &[u8]) {
-    use hal_sim::receiver_config::ReceiverConfig;
-    use hal_sim::replay::{ReplayLine, StreamOptions, replay_stream};
+    use hal_sim::io::receiver_config::ReceiverConfig;
+    use hal_sim::io::replay::{ReplayLine, StreamOptions, replay_stream};
     let mut b = Bytes::new(data);
     let mode = b.u8();
     let receiver = if mode & 2 != 0 {
