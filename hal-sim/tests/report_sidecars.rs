@@ -38,6 +38,7 @@ fn rerun(side: &Sidecar, record: &serde_json::Value) -> serde_json::Value {
         "classic-report" => hal_sim::sim::classic_loop::rerun(record),
         "multi-report" => hal_sim::sim::multi::rerun(record),
         "rescue-report" => hal_sim::eval::rescue_report::rerun(record),
+        "baselines-report" => hal_sim::eval::baselines::record::rerun(record),
         other => panic!("unknown report kind {other}"),
     };
     result.unwrap_or_else(|e| panic!("{}: re-running {record}: {e:#}", side.report))

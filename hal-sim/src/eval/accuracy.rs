@@ -798,7 +798,10 @@ fn closed_loop<E: Estimator + ?Sized, B: std::ops::DerefMut<Target = E>>(
         &TransmitterSpec::default(),
         [d0 * bearing.cos(), d0 * bearing.sin(), -depth],
     );
-    let sensors = SensorConfig::default();
+    let mut sensors = SensorConfig::default();
+    // The pulse noise simulated and declared (×1 normally: the values are unchanged).
+    sensors.pulse.sigma_bkg_a_per_m *= noise.pulse_multiplier;
+    sensors.pulse.k_sen *= noise.pulse_multiplier;
     let tx_p = V3::from(tx.position);
     let scale = 1.0 + 0.02 * noise.scale_multiplier * gauss(&mut rng);
     let fcfg = filter_config(

@@ -23,6 +23,7 @@ pub mod dr;
 pub mod lm;
 pub mod paper;
 mod plot;
+pub mod record;
 pub mod report;
 pub mod rls;
 
@@ -31,7 +32,9 @@ pub mod rls;
 pub type Factory = fn(&SogConfig) -> Option<Box<dyn Estimator>>;
 
 /// A compared method.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, clap::ValueEnum)]
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize, clap::ValueEnum,
+)]
 pub enum Method {
     /// The firmware's SOGs filter (IROS 2006 Alg. 1), run by `accuracy`'s own runner.
     Sog,
@@ -169,8 +172,6 @@ pub struct MethodRuns {
     pub open: Vec<RunResult>,
     /// Closed-loop rescues (empty for methods that do not guide).
     pub closed: Vec<Rescue>,
-    /// Wall time of all the runs, s.
-    pub wall_s: f64,
 }
 
 /// One open-loop run of `method` on scenario `seed` (the calibrated `paper` case).
@@ -189,14 +190,18 @@ pub fn run_open(method: Method, seed: u64, noise: &MotionNoise) -> Option<RunRes
 
 /// Runs `method` on seeds `first_seed..first_seed + runs`, in parallel over scenarios.
 pub fn run_method(method: Method, first_seed: u64, runs: u64) -> anyhow::Result<MethodRuns> {
+    use indicatif::ParallelProgressIterator as _;
     use rayon::prelude::*;
-    let start = std::time::Instant::now();
     let noise = MotionNoise::default();
     let seeds = first_seed..first_seed + runs;
     let open: Vec<RunResult> = if method.open_loop() {
         seeds
             .clone()
             .into_par_iter()
+            .progress_with(crate::cli::progress::bar(
+                runs,
+                &format!("{} runs", method.name()),
+            ))
             .filter_map(|s| run_open(method, s, &noise))
             .collect()
     } else {
@@ -205,6 +210,10 @@ pub fn run_method(method: Method, first_seed: u64, runs: u64) -> anyhow::Result<
     let closed = match method.closed_loop() {
         Some(case) => seeds
             .into_par_iter()
+            .progress_with(crate::cli::progress::bar(
+                runs,
+                &format!("{} rescues", method.name()),
+            ))
             .map(|s| rescue_report::run_one(case, s))
             .collect::<anyhow::Result<Vec<_>>>()?,
         None => Vec::new(),
@@ -213,7 +222,6 @@ pub fn run_method(method: Method, first_seed: u64, runs: u64) -> anyhow::Result<
         method,
         open,
         closed,
-        wall_s: start.elapsed().as_secs_f64(),
     })
 }
 

@@ -10,7 +10,7 @@ use plotters::prelude::*;
 use std::path::Path;
 
 /// Series colours, in order.
-pub(crate) const COLOURS: [RGBColor; 8] = [
+pub(crate) const COLOURS: [RGBColor; 10] = [
     RGBColor(0, 90, 200),
     RGBColor(230, 120, 0),
     RGBColor(0, 150, 70),
@@ -19,6 +19,8 @@ pub(crate) const COLOURS: [RGBColor; 8] = [
     RGBColor(90, 90, 90),
     RGBColor(0, 170, 200),
     RGBColor(160, 120, 0),
+    RGBColor(0, 0, 0),
+    RGBColor(240, 110, 170),
 ];
 
 /// A named polyline.

@@ -3,21 +3,22 @@
 use super::plot::{Axis, COLOURS, Legend, Series, plot};
 use super::{Method, MethodRuns, run_method};
 use crate::eval::accuracy::stats;
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 /// Options of `hal-sim baselines-report`.
 #[derive(clap::Args, Debug, Clone)]
 pub struct Args {
-    /// Seeded scenarios per method.
-    #[arg(long, default_value_t = 100)]
-    pub runs: u64,
-    /// First scenario seed (seeds `seed..seed + runs`).
-    #[arg(long, default_value_t = 1)]
-    pub seed: u64,
-    /// Directory for `baselines.md` and its PNG plots.
-    #[arg(long, default_value = "hal-sim/reports")]
+    /// Seeded scenarios per method (at least 1).
+    #[arg(long, alias = "runs", default_value_t = 100, value_parser = clap::value_parser!(u64).range(1..))]
+    pub tries: u64,
+    /// First scenario seed (seeds `first_seed..first_seed + tries`).
+    #[arg(long, alias = "seed", default_value_t = 1)]
+    pub first_seed: u64,
+    /// The markdown report to write (`X.md`); its sidecar `X.json` and the PNG plots go
+    /// beside it.
+    #[arg(long)]
     pub out: PathBuf,
     /// Methods to run (default: all).
     #[arg(long, value_enum, value_delimiter = ',')]
@@ -27,8 +28,6 @@ pub struct Args {
     pub no_paper_protocols: bool,
 }
 
-/// File names written in the output directory.
-pub const REPORT_MD: &str = "baselines.md";
 /// Median error against time, per method.
 pub const ERROR_PNG: &str = "baselines_error_vs_time.png";
 /// CDF of the final error, per method.
@@ -58,16 +57,10 @@ fn fmt2(s: Option<[f64; 3]>) -> String {
     }
 }
 
-/// Mean host time per step over the runs, µs.
-fn host_us(r: &MethodRuns) -> Option<f64> {
-    (!r.open.is_empty())
-        .then(|| r.open.iter().map(|o| o.host_us_per_step).sum::<f64>() / r.open.len() as f64)
-}
-
 /// The accuracy table (one row per method).
 fn accuracy_table(all: &[MethodRuns]) -> String {
     let mut s = String::from(
-        "| method | runs (with an estimate) | final error max / mean / median (m) | paper max / mean / median (m) | error at 20 m mean / median (m) | error at 10 m mean / median (m) | final error > 1 m | host time per step (µs) |\n|---|---|---|---|---|---|---|---|\n",
+        "| method | runs (with an estimate) | final error max / mean / median (m) | paper max / mean / median (m) | error at 20 m mean / median (m) | error at 10 m mean / median (m) | final error > 1 m |\n|---|---|---|---|---|---|---|\n",
     );
     for r in all {
         let errs = final_errors(r);
@@ -92,10 +85,9 @@ fn accuracy_table(all: &[MethodRuns]) -> String {
         };
         let _ = writeln!(
             s,
-            "| {name} | {n} ({with}) | {} | {paper} | {at20} | {at10} | {over} of {n} ({:.0} %) | {} |",
+            "| {name} | {n} ({with}) | {} | {paper} | {at20} | {at10} | {over} of {n} ({:.0} %) |",
             fmt3(stats(errs.into_iter())),
             100.0 * over as f64 / n.max(1) as f64,
-            host_us(r).map_or("–".into(), |h| format!("{h:.0}")),
         );
     }
     s
@@ -181,10 +173,8 @@ fn verdict(all: &[MethodRuns]) -> String {
 /// Markdown of the whole report.
 pub fn markdown(args: &Args, all: &[MethodRuns]) -> String {
     let mut s = format!(
-        "## Baselines beside the SOGs filter (`nice -n 10 cargo run -p hal-sim --profile sim -- baselines-report --runs {} --seed {} --out {}`)\n\n",
-        args.runs,
-        args.seed,
-        args.out.display()
+        "## Baselines beside the SOGs filter (`{}`)\n\n",
+        command(args)
     );
     s.push_str("This one command regenerates every table and plot below: first every method under one common protocol, then each baseline under its own paper's protocol beside the paper's numbers (`--no-paper-protocols` leaves the second part out).\n\n");
     s.push_str(
@@ -192,7 +182,7 @@ pub fn markdown(args: &Args, all: &[MethodRuns]) -> String {
     );
     s.push_str("### Accuracy (final error: 3-D at the last pulse)\n\n");
     s.push_str(&accuracy_table(all));
-    s.push_str("\n¹ Closed loop only (DS has no estimate before it stands on the maximum): the horizontal error of the point it found, from the closed-loop rescues; a rescue that never found the maximum has no position (counted in \"> 1 m\").\n\nHost time per step: mean over the runs of the estimator's `step` on this PC (`sim` profile: release optimizations; runs in parallel on a shared 2-core machine with other jobs running: compare within one report, not across reports).\n\n");
+    s.push_str("\n¹ Closed loop only (DS has no estimate before it stands on the maximum): the horizontal error of the point it found, from the closed-loop rescues; a rescue that never found the maximum has no position (counted in \"> 1 m\").\n\nThe cost per step is not timed on the host (a timing depends on the machine and its load): the firmware's filters are counted in Cortex-M4F instructions under QEMU in [baselines_qemu.md](baselines_qemu.md).\n\n");
     s.push_str("The papers' own numbers (final error max / mean / median over 100 tries, their simulations): IROS 2006 Table I — SOGs 0.66 / 0.23 / 0.21 m, RBPF 32.5 / 2.27 / 0.28 m; ICRA 2006 Table II — DS 2.62 / 0.52 / 0.42 m.\n\n");
     s.push_str("### Steps to find (closed loop, where the method guides)\n\n");
     s.push_str(&closed_loop_table(all));
@@ -209,8 +199,6 @@ pub fn markdown(args: &Args, all: &[MethodRuns]) -> String {
         "![median error against time]({ERROR_PNG})\n\nMedian (over the runs still going) of the 3-D error against the pulse index, open loop. The SOGs filter's curve starts when half the runs have a pulse strong enough to initialize from (|H| ≥ 10 σ_bkg); the batch methods use every pulse from the first. Runs end at different pulses (the walk's length), so the tail mixes fewer, longer runs.\n\n![CDF of the final error]({CDF_PNG})\n\nFraction of runs with a final error below x (open loop: 3-D; closed loop: horizontal error of the found point).\n"
     );
     s.push_str("### Instructions per step on the Cortex-M4F\n\nThe firmware's filters (SOGs, EKF, PF, RBPF, histogram) are counted under QEMU in [baselines_qemu.md](baselines_qemu.md). The LM fit and the RLS identifier are host-only (`f64`, every pulse kept).\n\n");
-    let total: f64 = all.iter().map(|r| r.wall_s).sum();
-    let _ = writeln!(s, "Wall time of the runs: {total:.0} s.");
     s
 }
 
@@ -273,35 +261,7 @@ fn error_vs_time(all: &[MethodRuns], path: &Path) -> Result<()> {
 
 /// CDF of the final errors (log x), per method, plus the SOGs receiver closed loop.
 fn cdf(all: &[MethodRuns], path: &Path) -> Result<()> {
-    let mut series = Vec::new();
-    let curve = |errs: Vec<Option<f64>>| {
-        let n = errs.len().max(1) as f64;
-        let mut v: Vec<f64> = errs.into_iter().flatten().collect();
-        v.sort_by(f64::total_cmp);
-        v.iter()
-            .enumerate()
-            .map(|(i, e)| (*e, (i + 1) as f64 / n))
-            .collect::<Vec<_>>()
-    };
-    for (i, r) in all.iter().enumerate() {
-        let name = if r.open.is_empty() {
-            format!("{} (closed loop, horizontal)", r.method.name())
-        } else {
-            r.method.name().to_string()
-        };
-        series.push(Series {
-            name,
-            colour: COLOURS[i % COLOURS.len()],
-            points: curve(final_errors(r)),
-        });
-        if !r.open.is_empty() && !r.closed.is_empty() {
-            series.push(Series {
-                name: format!("{} (closed loop, horizontal)", r.method.name()),
-                colour: COLOURS[(i + 5) % COLOURS.len()],
-                points: curve(r.closed.iter().map(|c| c.error_h_m).collect()),
-            });
-        }
-    }
+    let series = cdf_series(cdf_curves(all));
     plot(
         path,
         "Cumulative distribution of the final error (100 seeds per method)",
@@ -320,8 +280,94 @@ fn cdf(all: &[MethodRuns], path: &Path) -> Result<()> {
     )
 }
 
-/// Runs the methods and returns the markdown, writing the report and plots to `args.out`.
+/// The CDF's curves: one per method, then one per method that also runs closed loop
+/// (its found-point errors), as `(legend, errors)`.
+fn cdf_curves(all: &[MethodRuns]) -> Vec<(String, Vec<Option<f64>>)> {
+    let mut curves: Vec<(String, Vec<Option<f64>>)> = all
+        .iter()
+        .map(|r| {
+            let name = if r.open.is_empty() {
+                format!("{} (closed loop, horizontal)", r.method.name())
+            } else {
+                r.method.name().to_string()
+            };
+            (name, final_errors(r))
+        })
+        .collect();
+    for r in all
+        .iter()
+        .filter(|r| !r.open.is_empty() && !r.closed.is_empty())
+    {
+        curves.push((
+            format!("{} (closed loop, horizontal)", r.method.name()),
+            r.closed.iter().map(|c| c.error_h_m).collect(),
+        ));
+    }
+    curves
+}
+
+/// The CDF's series: every curve in its own colour (the methods' colours as in the
+/// error-against-time plot, then the closed-loop curves').
+fn cdf_series(curves: Vec<(String, Vec<Option<f64>>)>) -> Vec<Series> {
+    curves
+        .into_iter()
+        .enumerate()
+        .map(|(i, (name, errs))| {
+            let n = errs.len().max(1) as f64;
+            let mut v: Vec<f64> = errs.into_iter().flatten().collect();
+            v.sort_by(f64::total_cmp);
+            Series {
+                name,
+                colour: COLOURS[i % COLOURS.len()],
+                points: v
+                    .iter()
+                    .enumerate()
+                    .map(|(i, e)| (*e, (i + 1) as f64 / n))
+                    .collect(),
+            }
+        })
+        .collect()
+}
+
+/// The command that regenerates the report (the header's and the sidecar's).
+pub fn command(args: &Args) -> String {
+    let mut c = format!(
+        "nice -n 10 cargo run -p hal-sim --profile sim -- baselines-report --tries {} --first-seed {}",
+        args.tries, args.first_seed
+    );
+    if !args.methods.is_empty() {
+        let names: Vec<String> = args
+            .methods
+            .iter()
+            .filter_map(|m| clap::ValueEnum::to_possible_value(m).map(|v| v.get_name().to_owned()))
+            .collect();
+        c.push_str(&format!(" --methods {}", names.join(",")));
+    }
+    if args.no_paper_protocols {
+        c.push_str(" --no-paper-protocols");
+    }
+    format!("{c} --out {}", args.out.display())
+}
+
+/// The directory of the PNG plots: the report's.
+fn plot_dir(out: &Path) -> &Path {
+    out.parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(Path::new("."))
+}
+
+/// Runs the methods and returns the markdown, writing the report (`args.out`), its
+/// sidecar (`X.json`) and the plots beside it.
 pub fn generate(args: &Args) -> Result<String> {
+    if args.tries == 0 {
+        bail!("--tries must be at least 1");
+    }
+    if args.out.extension().and_then(|e| e.to_str()) != Some("md") {
+        bail!(
+            "--out must name the markdown report (X.md; its sidecar X.json and the plots go beside it), not {}",
+            args.out.display()
+        );
+    }
     let methods: Vec<Method> = if args.methods.is_empty() {
         Method::ALL.to_vec()
     } else {
@@ -329,31 +375,36 @@ pub fn generate(args: &Args) -> Result<String> {
     };
     let mut all = Vec::new();
     for m in methods {
-        eprintln!("baselines: {} × {} …", m.name(), args.runs);
-        let r = run_method(m, args.seed, args.runs)?;
-        eprintln!("baselines: {} done in {:.1} s", m.name(), r.wall_s);
-        all.push(r);
+        eprintln!("baselines: {} × {} …", m.name(), args.tries);
+        all.push(run_method(m, args.first_seed, args.tries)?);
     }
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("creating {}", args.out.display()))?;
-    error_vs_time(&all, &args.out.join(ERROR_PNG))?;
-    cdf(&all, &args.out.join(CDF_PNG))?;
+    let dir = plot_dir(&args.out);
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    error_vs_time(&all, &dir.join(ERROR_PNG))?;
+    cdf(&all, &dir.join(CDF_PNG))?;
     let mut md = markdown(args, &all);
+    let mut paper = serde_json::Map::new();
     if !args.no_paper_protocols {
         md.push_str("\n## Each baseline under its own paper's protocol\n\n");
-        md.push_str(&super::paper::search::ds_section(args.seed, args.runs)?);
+        let (ds, ds_summary) = super::paper::search::ds_section(args.first_seed, args.tries)?;
+        md.push_str(&ds);
         md.push('\n');
-        md.push_str(&super::paper::iros::iros_section(args.seed, args.runs));
+        let (iros, iros_summary) = super::paper::iros::iros_section(args.first_seed, args.tries);
+        md.push_str(&iros);
         md.push('\n');
-        let (drone, _) = super::paper::report::drone_section(args.seed, args.runs, &args.out)?;
+        let (drone, drone_summary) =
+            super::paper::report::drone_section(args.first_seed, args.tries, dir)?;
         md.push_str(&drone);
+        paper.insert("directional_search_icra".into(), ds_summary);
+        paper.insert("iros_closed_loop".into(), iros_summary);
+        paper.insert("rls_drone_protocol".into(), drone_summary);
     }
-    std::fs::write(args.out.join(REPORT_MD), &md)
-        .with_context(|| format!("writing {}", args.out.join(REPORT_MD).display()))?;
+    let side = super::record::sidecar(&command(args), args, &all, paper)?;
+    crate::eval::sidecar::write(&args.out, &md, side)?;
     Ok(md)
 }
 
-/// `hal-sim baselines-report`.
+/// `hal-sim baselines-report` (the markdown is also printed).
 pub fn run(args: &Args, out: &mut impl std::io::Write) -> Result<()> {
     let md = generate(args)?;
     out.write_all(md.as_bytes())?;
@@ -368,9 +419,9 @@ mod tests {
     fn report_on_three_runs_has_every_row_and_the_plots() {
         let dir = tempfile::tempdir().unwrap();
         let args = Args {
-            runs: 3,
-            seed: 1,
-            out: dir.path().to_path_buf(),
+            tries: 3,
+            first_seed: 1,
+            out: dir.path().join("b.md"),
             methods: Vec::new(),
             no_paper_protocols: true,
         };
@@ -383,8 +434,52 @@ mod tests {
         }
         assert!(md.contains("0.66 / 0.23 / 0.21"));
         assert!(md.contains("the SOGs filter"));
-        for f in [REPORT_MD, ERROR_PNG, CDF_PNG] {
+        for f in ["b.md", "b.json", ERROR_PNG, CDF_PNG] {
             assert!(dir.path().join(f).metadata().unwrap().len() > 0, "{f}");
+        }
+        // No host timing in the report: it would depend on the machine's load.
+        assert!(!md.contains("µs") && !md.contains("Wall time"), "{md}");
+        let side = crate::eval::sidecar::read(&dir.path().join("b.json")).unwrap();
+        assert_eq!(side.command, command(&args));
+        assert_eq!(
+            side.markdown_fnv64,
+            crate::eval::sidecar::fnv64(md.as_bytes())
+        );
+    }
+
+    #[test]
+    fn out_must_name_a_markdown_file() {
+        let args = Args {
+            tries: 1,
+            first_seed: 1,
+            out: PathBuf::from("hal-sim/reports"),
+            methods: vec![Method::SingleEkf],
+            no_paper_protocols: true,
+        };
+        let e = generate(&args).unwrap_err().to_string();
+        assert!(e.contains("X.md"), "{e}");
+    }
+
+    #[test]
+    fn every_cdf_curve_has_its_own_colour() {
+        // As many curves as the report draws: every method, plus a closed-loop curve for
+        // each method that runs both open and closed loop.
+        let both = Method::ALL
+            .iter()
+            .filter(|m| m.open_loop() && m.closed_loop().is_some())
+            .count();
+        let curves = (0..Method::ALL.len() + both)
+            .map(|i| (format!("curve {i}"), vec![Some(1.0)]))
+            .collect();
+        let series = cdf_series(curves);
+        for (i, a) in series.iter().enumerate() {
+            for b in &series[i + 1..] {
+                assert_ne!(
+                    a.colour, b.colour,
+                    "{} and {} share a colour",
+                    a.name, b.name
+                );
+            }
         }
     }
 }
