@@ -600,7 +600,7 @@ impl Frontend {
         // The window must hold no block of the last pulse (nor of a switch transient):
         // its tail would fire again.
         let clear = b + 1 >= self.quiet_from + w;
-        if w == 0 || !settled || !clear || (b + 1) % self.cfg.coherent_hop as u64 != 0 {
+        if w == 0 || !settled || !clear || !(b + 1).is_multiple_of(self.cfg.coherent_hop as u64) {
             return None;
         }
         let (z, _) = coherent::statistic(
