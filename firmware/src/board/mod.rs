@@ -14,6 +14,7 @@ pub mod i2c_bus;
 pub mod menu;
 pub mod pins;
 pub mod profile;
+pub mod schedule;
 pub mod sd_log;
 pub mod settings;
 pub mod sound;

@@ -319,6 +319,26 @@ mod tests {
     }
 
     #[test]
+    fn a_known_sign_seeds_only_that_sign() {
+        // Each cell's moment is the dipole inverse of the signed pulse, so every
+        // component predicts `+z`, none `−z`: with `sign_ambiguous` false (the sign
+        // known) the initial mixture holds the known sign only.
+        for seed in 0..5 {
+            let (mut config, att, z_body, _, _) = setup(seed);
+            config.sign_ambiguous = false;
+            let mut v: Vec<Component, 240> = Vec::new();
+            assert!(initialize(&mut v, &config, &att, &z_body, 1e-6, false) > 50);
+            for c in v.iter() {
+                let h = measure(&c.x).unwrap().h;
+                assert!(
+                    h.dot(&z_body) > 0.99 * z_body.norm_squared(),
+                    "{h} vs {z_body}"
+                );
+            }
+        }
+    }
+
+    #[test]
     fn noisy_first_pulse_still_covers_the_moment_range() {
         // A transmitter at m_max whose first pulse reads 1.5σ high (SNR 10): without the
         // widening the inferred moment interval would end below the true moment.

@@ -40,15 +40,17 @@ pub(crate) fn prune<const N: usize>(comps: &mut Vec<Component, N>, min_weight: f
 
 /// `b`'s mean as seen from `a`: angles unwrapped next to `a`'s, and the moment's sign
 /// aligned with `a`'s (the moment's sign is a free gauge under sign-ambiguous pulses).
+/// With `signed` pulses (`SogConfig::sign_ambiguous` false) `m` and `−m` predict opposite
+/// fields, two different hypotheses: the moment is never flipped then.
 /// Returns the aligned mean and whether the moment was flipped.
-fn aligned(a: &StateVec, b: &StateVec) -> (StateVec, bool) {
+fn aligned(a: &StateVec, b: &StateVec, signed: bool) -> (StateVec, bool) {
     let mut out = *b;
     for i in I_RPY..I_RPY + 3 {
         out[i] = a[i] + wrap_pi(b[i] - a[i]);
     }
     let ma = Vec3::new(a[I_M], a[I_M + 1], a[I_M + 2]);
     let mb = Vec3::new(b[I_M], b[I_M + 1], b[I_M + 2]);
-    let flip = ma.dot(&mb) < 0.0;
+    let flip = !signed && ma.dot(&mb) < 0.0;
     if flip {
         for i in I_M..I_M + 3 {
             out[i] = -out[i];
@@ -137,9 +139,10 @@ impl MergeKey {
     }
 }
 
-/// Merges pairs of near-duplicate components: position and moment (sign-aligned) within
-/// `max_d2` (squared Mahalanobis, with the sum of both covariances). The merge preserves
-/// the pair's weight, mean and covariance (eq. 18 applied to the pair).
+/// Merges pairs of near-duplicate components: position and moment (sign-aligned unless
+/// `signed`, see [`aligned`]) within `max_d2` (squared Mahalanobis, with the sum of both
+/// covariances). The merge preserves the pair's weight, mean and covariance (eq. 18
+/// applied to the pair).
 /// Returns the number of merges.
 ///
 /// All pairs are visited in the same order as a plain double loop, but the cheap
@@ -148,7 +151,11 @@ impl MergeKey {
 /// at ≈ 10 instructions per rejected pair. Never inlined: its key buffer then lives on
 /// the stack only while it runs, not in the whole step's frame.
 #[inline(never)]
-pub(crate) fn merge<const N: usize>(comps: &mut Vec<Component, N>, max_d2: f32) -> u16 {
+pub(crate) fn merge<const N: usize>(
+    comps: &mut Vec<Component, N>,
+    max_d2: f32,
+    signed: bool,
+) -> u16 {
     let mut keys: Vec<MergeKey, N> = comps.iter().map(MergeKey::of).collect();
     let mut merged = 0u16;
     let mut i = 0;
@@ -165,8 +172,8 @@ pub(crate) fn merge<const N: usize>(comps: &mut Vec<Component, N>, max_d2: f32) 
             let (Some(a), Some(b)) = (comps.get(i), comps.get(j)) else {
                 break;
             };
-            if close(a, b, max_d2) {
-                let m = merge_pair(a, b);
+            if close(a, b, max_d2, signed) {
+                let m = merge_pair(a, b, signed);
                 ki = MergeKey::of(&m);
                 if let (Some(slot), Some(key)) = (comps.get_mut(i), keys.get_mut(i)) {
                     *slot = m;
@@ -185,7 +192,7 @@ pub(crate) fn merge<const N: usize>(comps: &mut Vec<Component, N>, max_d2: f32) 
 }
 
 /// Whether two components are near-duplicates.
-fn close(a: &Component, b: &Component, max_d2: f32) -> bool {
+fn close(a: &Component, b: &Component, max_d2: f32, signed: bool) -> bool {
     let pa = Vec3::new(a.x[I_P], a.x[I_P + 1], a.x[I_P + 2]);
     let pb = Vec3::new(b.x[I_P], b.x[I_P + 1], b.x[I_P + 2]);
     let dp = pa - pb;
@@ -194,7 +201,7 @@ fn close(a: &Component, b: &Component, max_d2: f32) -> bool {
     if dp.norm_squared() > max_d2 * cpp.trace() {
         return false;
     }
-    let (bx, _) = aligned(&a.x, &b.x);
+    let (bx, _) = aligned(&a.x, &b.x, signed);
     let dm = Vec3::new(
         a.x[I_M] - bx[I_M],
         a.x[I_M + 1] - bx[I_M + 1],
@@ -205,8 +212,8 @@ fn close(a: &Component, b: &Component, max_d2: f32) -> bool {
 }
 
 /// Moment-preserving merge of two components.
-fn merge_pair(a: &Component, b: &Component) -> Component {
-    let (bx, flip) = aligned(&a.x, &b.x);
+fn merge_pair(a: &Component, b: &Component, signed: bool) -> Component {
+    let (bx, flip) = aligned(&a.x, &b.x, signed);
     let mut pb = b.p();
     if flip {
         flip_moment_cov(&mut pb);
@@ -381,8 +388,13 @@ pub(crate) fn position_moments<const N: usize>(
     Some((mean, cov, libm::expf(best_lw) / wsum, best))
 }
 
-/// Weighted mean of the moment, each component's sign aligned with the heaviest one's.
-pub(crate) fn moment_mean<const N: usize>(comps: &Vec<Component, N>, best: usize) -> Vec3 {
+/// Weighted mean of the moment, each component's sign aligned with the heaviest one's
+/// (unless `signed`: a known pulse sign makes the moment's sign part of the belief).
+pub(crate) fn moment_mean<const N: usize>(
+    comps: &Vec<Component, N>,
+    best: usize,
+    signed: bool,
+) -> Vec3 {
     let Some(b) = comps.get(best) else {
         return Vec3::zeros();
     };
@@ -392,7 +404,7 @@ pub(crate) fn moment_mean<const N: usize>(comps: &Vec<Component, N>, best: usize
     for c in comps.iter() {
         let w = libm::expf(c.log_w);
         let m = Vec3::new(c.x[I_M], c.x[I_M + 1], c.x[I_M + 2]);
-        acc += if m.dot(&mb) < 0.0 { -m } else { m } * w;
+        acc += if !signed && m.dot(&mb) < 0.0 { -m } else { m } * w;
         wsum += w;
     }
     if wsum > 0.0 { acc / wsum } else { mb }
@@ -457,7 +469,7 @@ mod tests {
         let _ = v.push(a);
         let _ = v.push(b);
         let (mean0, cov0, _, _) = position_moments(&v).unwrap();
-        assert_eq!(merge(&mut v, 0.3), 1);
+        assert_eq!(merge(&mut v, 0.3, false), 1);
         assert_eq!(v.len(), 1);
         let (mean1, cov1, w, _) = position_moments(&v).unwrap();
         assert!((mean1 - mean0).norm() < 1e-5);
@@ -468,7 +480,43 @@ mod tests {
         assert!((m - (0.3 * 5.0 + 0.7 * 5.2)).abs() < 1e-4, "{m}");
         // Far components are not merged.
         let _ = v.push(comp(Vec3::new(20.0, 1.0, -2.0), Vec3::x(), 1.0, 0.0));
-        assert_eq!(merge(&mut v, 0.3), 0);
+        assert_eq!(merge(&mut v, 0.3, false), 0);
+    }
+
+    #[test]
+    fn a_known_sign_never_flips_the_moment() {
+        // Opposite moments at one position: the same hypothesis when the pulse sign is
+        // ambiguous, opposite predicted fields when it is known (`signed`).
+        let a = comp(
+            Vec3::new(10.0, 1.0, -2.0),
+            Vec3::new(5.0, 1.0, 0.0),
+            1.0,
+            libm::logf(0.3),
+        );
+        let b = comp(
+            Vec3::new(10.2, 1.0, -2.0),
+            Vec3::new(-5.2, -1.0, 0.0),
+            1.0,
+            libm::logf(0.7),
+        );
+        let mut v: Vec<Component, 4> = Vec::new();
+        let _ = v.push(a);
+        let _ = v.push(b);
+        assert!((moment_mean(&v, 1, false).x + (0.3 * 5.0 + 0.7 * 5.2)).abs() < 1e-4);
+        let m = moment_mean(&v, 1, true).x;
+        assert!((m - (0.3 * 5.0 - 0.7 * 5.2)).abs() < 1e-4, "{m}");
+        assert_eq!(merge(&mut v, 0.3, true), 0);
+        assert_eq!(v.len(), 2);
+        // Equal signs still merge when the sign is known.
+        let mut c = b;
+        c.x.fixed_rows_mut::<3>(I_M)
+            .copy_from(&Vec3::new(5.2, 1.0, 0.0));
+        let mut v: Vec<Component, 4> = Vec::new();
+        let _ = v.push(a);
+        let _ = v.push(c);
+        assert_eq!(merge(&mut v, 0.3, true), 1);
+        let m = v[0].x[I_M];
+        assert!((m - (0.3 * 5.0 + 0.7 * 5.2)).abs() < 1e-4, "{m}");
     }
 
     #[test]

@@ -562,7 +562,11 @@ impl<const N: usize> SogFilter<N> {
         normalize(&mut self.comps);
         let pruned = prune(&mut self.comps, self.config.prune_weight);
         mark(Phase::Prune);
-        let merged = merge(&mut self.comps, self.config.merge_d2);
+        let merged = merge(
+            &mut self.comps,
+            self.config.merge_d2,
+            !self.config.sign_ambiguous,
+        );
         mark(Phase::Merge);
         let split = split(
             &mut self.comps,
@@ -598,7 +602,7 @@ impl<const N: usize> Estimator for SogFilter<N> {
         }
         let (p, cov, max_weight, best) = position_moments(&self.comps)?;
         let heaviest = self.comps.get(best)?;
-        let moment = moment_mean(&self.comps, best) / MOMENT_SCALE;
+        let moment = moment_mean(&self.comps, best, !self.config.sign_ambiguous) / MOMENT_SCALE;
         let mut scale = 0.0;
         let mut scale_var = 0.0;
         for c in self.comps.iter() {

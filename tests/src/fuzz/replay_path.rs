@@ -101,10 +101,19 @@ pub fn receiver_json(data: &[u8]) {
 
 // --- replay -----------------------------------------------------------------------------
 
+/// Size at which [`replay_log`] stops generating: 32 KiB ≈ 260 IMU records (2.6 s of log at
+/// 100 Hz, more than the 2 s reorder window; the time-jump op adds seconds) and up to a
+/// few dozen pulses. Without it a 4 KB input
+/// expanded to up to 600 runs of 50 records (≈ 3 MB of text), and the run spent ≈ 80 % of
+/// its time writing and parsing JSON (`perf`, 2026-11-28), ≈ 110 inputs/s. The reader
+/// alone is fuzzed on arbitrary bytes by `session_log_reader`.
+const MAX_LOG_BYTES: usize = 32 * 1024;
+
 /// A session log from fuzz bytes: a header (fuzzed rate, earth field, sign flag), then a
 /// stream of IMU runs (plausible, walking, with fuzzed perturbations, a saturated or absent
 /// magnetometer), pulses (fuzzed field, time, source), repeated pulses, marks, `seq`
-/// gaps, garbage, torn lines and second headers — text the reader must survive.
+/// gaps, garbage, torn lines and second headers — text the reader must survive. At most
+/// about [`MAX_LOG_BYTES`] (the op that crosses it is finished).
 fn replay_log(b: &mut Bytes) -> Vec<u8> {
     use std::fmt::Write as _;
     fn num(x: f32) -> String {
@@ -127,7 +136,7 @@ fn replay_log(b: &mut Bytes) -> Vec<u8> {
     let _ = writeln!(s, "{}", header(b));
     let (mut t, mut seq) = (0.0f32, 0u64);
     let mut ops = 0;
-    while !b.is_empty() && ops < 600 {
+    while !b.is_empty() && ops < 600 && s.len() < MAX_LOG_BYTES {
         ops += 1;
         let op = b.u8();
         let seq_text = if op & 0x20 != 0 {
