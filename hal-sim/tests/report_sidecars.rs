@@ -37,7 +37,7 @@ fn rerun(side: &Sidecar, record: &serde_json::Value) -> serde_json::Value {
     let result = match side.report.as_str() {
         "accuracy" => hal_sim::eval::accuracy::rerun(record),
         "classic-report" => hal_sim::sim::classic_loop::rerun(record),
-        "multi-report" => hal_sim::sim::multi::rerun(record),
+        "multi-report" => hal_sim::eval::multi_report::rerun(record),
         "rescue-report" => hal_sim::eval::rescue_report::rerun(record),
         "baselines-report" => hal_sim::eval::baselines::record::rerun(record),
         other => panic!("unknown report kind {other}"),

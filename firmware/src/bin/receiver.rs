@@ -80,6 +80,7 @@ use firmware::board::board_log::BoardLog;
 use firmware::board::crash::{self, CrashKind, CrashRecord, LastReset};
 use firmware::board::health::{self, Battery, BatteryState, Fault, SensorHealth};
 use firmware::board::i2c_bus::{self, ClearError, Cleared, Guarded, Recoverable};
+use firmware::board::menu::{self, Menu, MenuEvent, PressDetector};
 use firmware::board::schedule::{
     IMU_QUEUE, LOG_QUEUE, PRIO_DISPLAY, PRIO_DRDY, PRIO_IMU, PRIO_PROCESS,
 };
@@ -530,6 +531,8 @@ pub struct View {
     model: DisplayModel,
     fault: Option<Fault>,
     battery: Option<BatteryState>,
+    /// The menu, when open (drawn instead of the search screen).
+    menu: Option<Menu>,
 }
 
 /// The SD card's word for the display (published by the idle loop).
@@ -545,6 +548,9 @@ fn sd_label() -> Option<&'static str> {
 /// status word, the battery gauge, the SD mark); false if the display did not take it.
 fn show(screen: &mut Screen, view: &View) -> bool {
     screen.clear(BinaryColor::Off).ok();
+    if let Some(m) = &view.menu {
+        return menu::draw(m, screen).is_ok() && screen.flush().is_ok();
+    }
     display::draw(&view.model, screen).is_ok()
         && health::draw_overlay(view.fault, view.battery, screen).is_ok()
         && health::draw_sd_mark(sd_label(), screen).is_ok()
@@ -582,7 +588,10 @@ pub struct Proc {
     fault_led: PC1<Output>,
     if_range: PC3<Output>,
     mark: MarkButton<PC6<Input>>,
-    sound_button: MarkButton<PC2<Input>>,
+    sound_pin: PC2<Input>,
+    sound_low: u8,
+    press: PressDetector,
+    menu: Menu,
     muted: bool,
     chirp_until_ms: u64,
     playing: Option<u32>,
@@ -644,6 +653,7 @@ impl Proc {
             model: self.shown,
             fault: self.fault,
             battery: self.battery.state(),
+            menu: self.menu.item().map(|_| self.menu),
         };
         view.lock(|slot| *slot = Some(v));
         rtic::pend(pac::Interrupt::USART2);
@@ -705,9 +715,16 @@ impl Proc {
             self.window_ticks = 0;
             self.second();
         }
-        let mut redraw = false;
-        // The mark button, polled at the tick (debounced over 3 ticks).
-        if self.mark.poll() {
+        let mut redraw = self.buttons();
+        // The mark button, polled at the tick (debounced over 3 ticks); in the menu it
+        // leaves the menu.
+        let marked = self.mark.poll();
+        if marked && self.menu.item().is_some() {
+            if let Some(MenuEvent::Closed { changed }) = self.menu.mark_button() {
+                self.close_menu(changed);
+            }
+            redraw = true;
+        } else if marked {
             self.event("mark", None, None);
             match self.receiver.mark() {
                 Ok(n) => defmt::info!("victim {=u8} marked", n),
@@ -815,16 +832,55 @@ impl Proc {
         }
     }
 
-    /// The sound button and the tone of the moment (10 ms edges at the tick).
+    /// The sound button (debounced level → short and long presses → the menu): true
+    /// when the menu changed on screen.
+    fn buttons(&mut self) -> bool {
+        let now_ms = self.ms_clock.now_ms(DWT::cycle_count());
+        // Pressed after 3 low polls in a row (30 ms: past a switch's bounce).
+        if self.sound_pin.is_low() {
+            self.sound_low = self.sound_low.saturating_add(1);
+        } else {
+            self.sound_low = 0;
+        }
+        let Some(press) = self.press.update(self.sound_low >= 3, now_ms) else {
+            return false;
+        };
+        match self.menu.sound_button(press) {
+            MenuEvent::ToggleMute => {
+                self.muted = !self.muted;
+                if !self.muted {
+                    self.chirp_until_ms = now_ms + sound::CHIRP_MS;
+                }
+                defmt::info!("sound {=str}", if self.muted { "off" } else { "on" });
+                false
+            }
+            MenuEvent::Start(_) => {
+                // The step walk and the magnetometer calibration are not wired yet.
+                defmt::warn!("menu: procedure not available on this build");
+                true
+            }
+            MenuEvent::Closed { changed } => {
+                self.close_menu(changed);
+                true
+            }
+            MenuEvent::Opened | MenuEvent::Changed | MenuEvent::None => true,
+        }
+    }
+
+    /// The menu closed: its settings apply from now on (volume 0 mutes); they are logged,
+    /// not yet stored (the flash write is not wired).
+    fn close_menu(&mut self, changed: bool) {
+        if changed {
+            let s = *self.menu.settings();
+            self.muted = s.volume == 0;
+            defmt::info!("settings changed (volume {=u8}); not stored", s.volume);
+            self.event("settings", Some("menu"), Some(i64::from(s.volume)));
+        }
+    }
+
+    /// The tone of the moment (10 ms edges at the tick).
     fn tone(&mut self) {
         let now_ms = self.ms_clock.now_ms(DWT::cycle_count());
-        if self.sound_button.poll() {
-            self.muted = !self.muted;
-            if !self.muted {
-                self.chirp_until_ms = now_ms + sound::CHIRP_MS;
-            }
-            defmt::info!("sound {=str}", if self.muted { "off" } else { "on" });
-        }
         let tone = if now_ms < self.chirp_until_ms {
             Some(sound::CHIRP_HZ)
         } else {
@@ -1225,7 +1281,7 @@ mod app {
         // The mark button: flags the victim being guided to as found.
         let mark = MarkButton::new(gpioc.pc6.into_pull_up_input());
         // The sound button: the same debounced press, on D12.
-        let sound_button = MarkButton::new(gpioc.pc2.into_pull_up_input());
+        let sound_pin = gpioc.pc2.into_pull_up_input();
         // Volume steps are not wired to the buzzer yet (50 % duty): 0 mutes.
         let muted = !SOUND_ON || settings.volume == 0;
         // The IF range switch starts in the high range, the ADC at the profile's gain: the
@@ -1291,7 +1347,10 @@ mod app {
                     fault_led,
                     if_range,
                     mark,
-                    sound_button,
+                    sound_pin,
+                    sound_low: 0,
+                    press: PressDetector::new(),
+                    menu: Menu::new(settings),
                     muted,
                     chirp_until_ms: 0,
                     playing: None,
