@@ -16,6 +16,7 @@ const REPORTS: &[&str] = &[
     "multi.md",
     "rescue.md",
     "rescue-seeds1000.md",
+    "baselines.md",
 ];
 
 fn reports_dir() -> PathBuf {
@@ -88,4 +89,9 @@ fn rescue_report_is_current() {
 #[test]
 fn rescue_report_on_the_second_seed_range_is_current() {
     check_report(REPORTS[4]);
+}
+
+#[test]
+fn baselines_report_is_current() {
+    check_report(REPORTS[5]);
 }
