@@ -72,10 +72,6 @@ pub mod session_log;
 pub mod timebase;
 pub mod victims;
 
-// The path of before `classic` moved under `guidance`, kept while parallel branches land.
-#[doc(hidden)]
-pub use guidance::classic;
-
 /// The linear-algebra crate used in this crate's public API, re-exported so that users
 /// do not end up with two versions of nalgebra.
 pub use nalgebra;

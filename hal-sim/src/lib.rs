@@ -27,18 +27,3 @@ pub mod world;
 pub fn stamp(t_s: f64) -> firmware::timebase::Instant {
     firmware::timebase::Instant::from_secs_f64(t_s).unwrap_or_default()
 }
-
-// The flat module paths of before the layout by role, kept only while parallel branches land
-// (removed at the end of the session that moved them).
-#[doc(hidden)]
-pub use crate::{
-    cli::{demo, field_map, progress},
-    eval::{
-        accuracy, accuracy_bound, baselines, budget_data, plot, rescue_report, sensing_report,
-        sidecar,
-    },
-    io::{inspect, receiver_config, replay, session, sog_replay},
-    sensors::{bus, faults},
-    sim::{classic_loop, closed_loop, multi, simulate},
-    world::{jet, physics, rescuer, routes, scenario, transmitter},
-};
