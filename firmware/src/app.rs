@@ -44,12 +44,12 @@
 use core::mem::MaybeUninit;
 
 use crate::Vec3;
-use crate::classic::{ClassicConfig, ClassicError, ClassicScreen, ClassicSearch};
 use crate::estimate::{
     self, Attitude, EstimateError, Estimator, SogConfig, StepOutcome, VictimEstimate,
 };
 use crate::frame::rotation_from_rpy;
 use crate::frontend::{Frontend, FrontendError, PulseMeasurement};
+use crate::guidance::classic::{ClassicConfig, ClassicError, ClassicScreen, ClassicSearch};
 use crate::guidance::{
     Guidance, GuidanceConfig, GuidanceInput, GuidanceOutput, HeightPrompt, Status, relative_arrow,
     to_degrees_wrapped,
@@ -104,7 +104,7 @@ pub enum SearchMode {
     /// The SOGs estimator per victim with its guidance (the default).
     #[default]
     Sog,
-    /// The classical directional search (ICRA 2006 §II-A, [`crate::classic`]): flux line,
+    /// The classical directional search (ICRA 2006 §II-A, [`crate::guidance::classic`]): flux line,
     /// turn-around on a falling signal, bracketing fine search; one transmitter, no
     /// estimator. For rescuers trained on classic receivers, or as a fallback.
     Classic,

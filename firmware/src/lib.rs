@@ -29,11 +29,10 @@
 //! - [`estimate`]: the [`estimate::Estimator`] trait and the robocentric Sum-of-Gaussians
 //!   filter [`estimate::SogFilter`] (IROS 2006 Algorithm 1; ICRA 2006 known trajectory).
 //! - [`guidance`]: search control (IROS 2006 §III-C, ICRA 2006 §V-D): flux line, then the
-//!   mixture mean, fine search and "probe here".
+//!   mixture mean, fine search and "probe here"; [`guidance::classic`], the receiver's
+//!   "classic" mode (the classical directional search, ICRA 2006 §II-A).
 //! - [`victims`]: several transmitters — one SOGs mixture per victim, displacement
 //!   composition between a victim's pulses, the victim list.
-//! - [`classic`]: the receiver's "classic" mode, the classical directional search
-//!   (ICRA 2006 §II-A) on the receiver's own pulses and attitude.
 //! - [`app`]: the application state machine [`app::Receiver`] that owns the pipeline.
 //! - [`display`]: draws the [`app::DisplayModel`] on any 128×64 monochrome
 //!   `embedded-graphics` target.
@@ -54,7 +53,6 @@
 pub mod app;
 pub mod board;
 pub mod calibration;
-pub mod classic;
 pub mod dipole;
 pub mod display;
 pub mod drivers;
@@ -73,6 +71,10 @@ pub mod motion;
 pub mod session_log;
 pub mod timebase;
 pub mod victims;
+
+// The path of before `classic` moved under `guidance`, kept while parallel branches land.
+#[doc(hidden)]
+pub use guidance::classic;
 
 /// The linear-algebra crate used in this crate's public API, re-exported so that users
 /// do not end up with two versions of nalgebra.

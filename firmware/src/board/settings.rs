@@ -70,7 +70,7 @@ pub const REGIONS: [Region; 4] = [
 pub enum SearchMode {
     /// The SOGs estimator (the receiver's own search).
     Sog,
-    /// The classic flux-line search (`crate::classic`).
+    /// The classic flux-line search (`crate::guidance::classic`).
     Classic,
 }
 

@@ -59,6 +59,8 @@
 //! from above, like yaw); the arrow is the bearing minus the device's yaw, positive to
 //! the left, in (-π, π]. Everything is `f32`, trig through `libm`.
 
+pub mod classic;
+
 use crate::Vec3;
 use crate::estimate::VictimEstimate;
 use crate::frame::wrap_pi;

@@ -1,5 +1,5 @@
 //! Closed-loop rescues with the receiver in its "classic" mode: the firmware's
-//! [`firmware::classic::ClassicSearch`] (the classical directional search, ICRA 2006 §II-A)
+//! [`firmware::guidance::classic::ClassicSearch`] (the classical directional search, ICRA 2006 §II-A)
 //! fed by the firmware's motion pipeline, with the rescuer, pulse noise, IMU synthesis and
 //! scenario draw of [`crate::sim::closed_loop`] (the SOG rescues' world, unchanged).
 //!
@@ -24,9 +24,9 @@ use crate::world::physics::{M3, V3, rotation_from_rpy};
 use crate::world::rescuer::wrap_pi;
 use firmware::Vec3;
 use firmware::app::DisplayModel;
-use firmware::classic::{ClassicConfig, ClassicOutput, ClassicSearch, Instruction};
 use firmware::estimate::{Attitude, Pulse};
 use firmware::guidance::Status;
+use firmware::guidance::classic::{ClassicConfig, ClassicOutput, ClassicSearch, Instruction};
 use firmware::motion::{Motion, MotionConfig};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

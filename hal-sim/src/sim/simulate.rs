@@ -11,15 +11,17 @@ pub struct Args {
     /// Scenario family: the papers' protocol, an open-loop route family or a hard case.
     #[arg(long, value_enum, default_value_t = Preset::Paper)]
     pub preset: Preset,
-    /// Seed of every random draw; the same seed and options give byte-identical files.
-    #[arg(long, default_value_t = 1)]
+    /// Seed of the first scenario (every random draw); the same seed and options give
+    /// byte-identical files. `--seed` is the same flag.
+    #[arg(long = "first-seed", visible_alias = "seed", default_value_t = 1)]
     pub seed: u64,
-    /// Output directory. With --count 1 the files go directly into it; otherwise into
+    /// Output directory. With --tries 1 the files go directly into it; otherwise into
     /// one sub-directory per scenario named PRESET-SEED.
     #[arg(long, default_value = "sim-out")]
     pub out: PathBuf,
-    /// Number of scenarios, with seeds SEED, SEED+1, …
-    #[arg(long, default_value_t = 1)]
+    /// Number of scenarios (≥ 1), with seeds SEED, SEED+1, … `--count` is the same flag.
+    #[arg(long = "tries", visible_alias = "count", default_value_t = 1,
+          value_parser = clap::value_parser!(u64).range(1..))]
     pub count: u64,
     /// Longest simulated time per scenario, s (the route usually ends earlier).
     #[arg(long, default_value_t = 900.0)]
