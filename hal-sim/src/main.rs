@@ -88,7 +88,7 @@ enum Command {
     /// Seeded multi-victim rescues (2–4 victims, close pairs, long pulse overlaps) with
     /// marking: victims found, per-victim error, time to find all, wrong-victim marks;
     /// a markdown report.
-    MultiReport(hal_sim::sim::multi::Args),
+    MultiReport(hal_sim::eval::multi_report::Args),
     /// Seeded closed-loop rescues with the receiver in its "classic" mode (the firmware's
     /// classical directional search) beside the idealized DS and the SOG; a markdown report.
     ClassicReport(hal_sim::sim::classic_loop::Args),
@@ -183,7 +183,9 @@ fn main() -> Result<()> {
         Command::TeamScenario(args) => hal_sim::team::run_scenario(&args, &mut stdout.lock()),
         Command::TeamMap(args) => hal_sim::team::run_map(&args, &mut stdout.lock()),
         Command::TeamReport(args) => hal_sim::team::report::run(&args, &mut stdout.lock()),
-        Command::MultiReport(args) => hal_sim::sim::multi::report(&args, &mut stdout.lock()),
+        Command::MultiReport(args) => {
+            hal_sim::eval::multi_report::report(&args, &mut stdout.lock())
+        }
         Command::ClassicReport(args) => {
             hal_sim::sim::classic_loop::report(&args, &mut stdout.lock())
         }

@@ -16,6 +16,7 @@ const REPORTS: &[&str] = &[
     "multi.md",
     "rescue.md",
     "rescue-seeds1000.md",
+    "baselines.md",
 ];
 
 fn reports_dir() -> PathBuf {
@@ -36,7 +37,7 @@ fn rerun(side: &Sidecar, record: &serde_json::Value) -> serde_json::Value {
     let result = match side.report.as_str() {
         "accuracy" => hal_sim::eval::accuracy::rerun(record),
         "classic-report" => hal_sim::sim::classic_loop::rerun(record),
-        "multi-report" => hal_sim::sim::multi::rerun(record),
+        "multi-report" => hal_sim::eval::multi_report::rerun(record),
         "rescue-report" => hal_sim::eval::rescue_report::rerun(record),
         "baselines-report" => hal_sim::eval::baselines::record::rerun(record),
         other => panic!("unknown report kind {other}"),
@@ -88,4 +89,9 @@ fn rescue_report_is_current() {
 #[test]
 fn rescue_report_on_the_second_seed_range_is_current() {
     check_report(REPORTS[4]);
+}
+
+#[test]
+fn baselines_report_is_current() {
+    check_report(REPORTS[5]);
 }

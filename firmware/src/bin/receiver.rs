@@ -1,7 +1,7 @@
 //! Board binary of the receiver (reference board: STM32F405RG on the Adafruit Feather
 //! STM32F405 Express, 12 MHz crystal). Flash and run with `cargo board-run` (probe-rs);
 //! logs arrive over RTT (defmt), the session log goes to the microSD card (one file per
-//! session) and over USART3.
+//! session; over USART3 instead when no card logs).
 //!
 //! The application itself is [`firmware::app::Receiver`] — the very type `hal-sim`
 //! drives on the PC; this file only binds it to the hardware:
@@ -38,89 +38,100 @@
 //! cannot wait on the ADC; a silent ADC shows as failed frames and a DRDY stall
 //! (`firmware::timebase`).
 //!
-//! Timing: every ADC sample is read in the DRDY interrupt (EXTI9_5, highest priority)
-//! into a lock-free queue, so no sample is lost while the main loop runs the estimator
-//! (≤ 8.4 M instructions per pulse, see `hal-sim/reports/budget.md`) or flushes the
-//! display. The ADC's sample count is the time base of everything (8 kSPS), so the
-//! pulse times of the front end and the IMU times share one clock; if the ADC stops
-//! delivering (a DRDY edge lost), the 100 Hz timer carries the clock and DRDY is re-armed
-//! every 100 ms (`firmware::timebase`), so dead reckoning and the display go on. Each record is
-//! written to the session log *before* the application processes it, so a fault in the
-//! estimator never loses recorded data. Memory: the receiver state (≈ 88 KB: four victims'
-//! SOGs mixtures, see `firmware::victims`) lives in SRAM (`.uninit`, never on the stack,
-//! never moved); the ADC sample queue (32 KB) and the pulse front end live in the
-//! core-coupled RAM (`.ccmram`, see `memory.x`), which the DMA-free design never needs
-//! to reach from a bus master.
+//! Timing: RTIC 2 tasks by priority (`firmware::board::schedule`, docs/board.md
+//! "Real-time structure", docs/decisions/board-realtime.md): the ADC's DRDY interrupt
+//! (EXTI9_5, priority 4) reads every sample into the sample queue (2 048 = 256 ms); the
+//! IMU tick (TIM2, 3) reads the IMU over I2C into the IMU queue (32 = 320 ms), so no IMU
+//! sample waits for the estimator or the display; the processing task (2) runs the DSP,
+//! the estimator, guidance, health and tones, IMU records and samples in time order; the
+//! display task (1) draws the newest model and flushes it in 16-byte I2C writes, each
+//! under the bus lock (ceiling 3), so the IMU tick waits at most one (0.41 ms); the idle
+//! loop (0) formats the session-log records, writes them to the card or the UART (the
+//! card may stay busy 250 ms) and feeds the watchdog. Every overrun (sample queue full,
+//! IMU tick missed, IMU queue full, log queue full) is counted and logged as an
+//! `overrun` event. The ADC's sample count is the time base of everything (8 kSPS); if
+//! the ADC stops delivering, the 100 Hz tick carries the clock and DRDY is re-armed every
+//! 100 ms (`firmware::timebase`). Memory: the receiver state (≈ 88 KB) lives in SRAM
+//! (`.uninit`, never on the stack, never moved); the ADC sample queue (32 KB) and the
+//! pulse front end live in the core-coupled RAM (`.ccmram`, see `memory.x`).
 #![no_std]
 #![no_main]
 // Narrow uses, each with its SAFETY note: the statics of the receiver, the sample queue,
-// the front end and the crash record (each taken once, in `main` or the panic handler),
-// and read-only reads of GPIOB's input register.
+// the front end, the session log, the I2C bus and the crash record (each taken once, at
+// boot or in the panic handler), the bus lock's BASEPRI writes, and read-only reads of
+// GPIOB's input register.
 #![allow(unsafe_code)]
 
 #[path = "receiver/sd_card.rs"]
 mod sd_card;
 
-use core::cell::RefCell;
+use core::cell::UnsafeCell;
 use core::mem::MaybeUninit;
-use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
-use cortex_m::interrupt::Mutex;
+use core::sync::atomic::{AtomicBool, AtomicU8, AtomicU32, Ordering};
 use cortex_m::peripheral::{DWT, SCB};
-use cortex_m_rt::entry;
 use defmt_rtt as _;
 use embedded_graphics::pixelcolor::BinaryColor;
 use embedded_graphics::prelude::*;
 use embedded_hal::delay::DelayNs;
-use embedded_hal_bus::i2c::RefCellDevice;
 use embedded_hal_bus::spi::ExclusiveDevice;
-use firmware::app::Receiver;
+use firmware::Vec3;
+use firmware::app::{DisplayModel, Receiver};
 use firmware::board::board_log::BoardLog;
 use firmware::board::crash::{self, CrashKind, CrashRecord, LastReset};
 use firmware::board::health::{self, Battery, BatteryState, Fault, SensorHealth};
 use firmware::board::i2c_bus::{self, ClearError, Cleared, Guarded, Recoverable};
+use firmware::board::menu::{self, Menu, MenuEvent, PressDetector};
+use firmware::board::schedule::{
+    IMU_QUEUE, LOG_QUEUE, PRIO_DISPLAY, PRIO_DRDY, PRIO_IMU, PRIO_PROCESS,
+};
 use firmware::board::sd_log::SdState;
 use firmware::board::settings::{self, Settings};
 use firmware::board::sound::{self, SoundInput};
-use firmware::board::watchdog::{MonotonicMs, ProgressWatch, Verdict, Work};
+use firmware::board::watchdog::{MonotonicMs, ProgressWatch, TickMisses, Verdict, Work};
 use firmware::board::{self, BoardProfile, pins};
 use firmware::display;
 use firmware::drivers::ads131m04::Ads131m04;
-use firmware::drivers::imu::Imu;
+use firmware::drivers::imu::{Imu, ImuReading};
 use firmware::frontend::{Frontend, IfRange, PulseMeasurement, RangeChange};
+use firmware::motion::MagCalibration;
 use firmware::session_log::Detail;
 use firmware::timebase::{ClockEvent, Instant, SampleClock, pulse_centre_us};
 use firmware::victims::MarkButton;
 use heapless::spsc::{Consumer, Producer, Queue};
+use rtic::Mutex;
 use ssd1306::{I2CDisplayInterface, Ssd1306, prelude::*};
 use stm32f4xx_hal::adc::Adc;
 use stm32f4xx_hal::adc::config::{AdcConfig, SampleTime};
-use stm32f4xx_hal::gpio::{Edge, ExtiPin, Input, OpenDrain, Output, PB6, PB7, PC3, PC7};
+use stm32f4xx_hal::gpio::{
+    Edge, ExtiPin, Input, OpenDrain, Output, PA3, PB6, PB7, PC1, PC2, PC3, PC6, PC7,
+};
 use stm32f4xx_hal::i2c::I2c;
 use stm32f4xx_hal::rcc::Rcc;
+use stm32f4xx_hal::timer::{CounterHz, PwmChannel, PwmHzManager};
 use stm32f4xx_hal::watchdog::IndependentWatchdog;
-use stm32f4xx_hal::{interrupt, pac, prelude::*, rcc::Config, spi};
+use stm32f4xx_hal::{pac, prelude::*, rcc::Config, spi};
 
 /// The board this binary runs on: analog chain, ADC, IMU mounting and rates, defaults.
 const PROFILE: BoardProfile = board::REFERENCE;
 /// Longest time (µs) the screen goes without a redraw when no pulse redraws it.
 const REDRAW_MAX_US: u64 = 1_000_000;
-/// ADC frames buffered between the DRDY interrupt and the main loop: 250 ms at 8 kSPS,
-/// room for the worst estimator step plus a display flush.
-const QUEUE_LEN: usize = 2048;
+/// ADC frames buffered between the DRDY interrupt and the processing task: 256 ms at
+/// 8 kSPS (`board::schedule::SAMPLE_QUEUE`; the worst burst of pulses fills 875).
+const QUEUE_LEN: usize = firmware::board::schedule::SAMPLE_QUEUE as usize;
 /// Core clock, Hz (also the DWT cycle counter's rate).
 const SYSCLK_HZ: u32 = 168_000_000;
-/// The independent watchdog's period, ms: the longest the main loop blocks is an
-/// estimator step (≈ 50 ms) plus a display flush (≈ 25 ms).
+/// The independent watchdog's period, ms: the idle loop feeds it; the longest it waits
+/// is a card's busy time (250 ms) behind the tasks above it.
 const IWDG_PERIOD_MS: u32 = 1000;
-/// Progress limits, ms, by [`Work`]: the queue holds 250 ms of samples, so draining it
-/// within 1 s leaves the worst estimator step four times over; the 100 Hz tick within
-/// 0.5 s (50 ticks).
+/// Progress limits, ms, by [`Work`]: the sample queue drained within 1 s (it holds
+/// 256 ms; a burst of pulses keeps it busy ≈ 0.3 s), IMU records handled within 0.5 s.
 const PROGRESS_LIMIT_MS: [u64; 2] = [1000, 500];
 /// How long the last reset's report stays on the display at boot, ms.
 const RESET_REPORT_MS: u32 = 3000;
 /// I2C1's bus clock.
 const I2C_HZ: u32 = 400_000;
-/// The session log also streams over USART3 (921 600 Bd), for a host attached by wire.
+/// The session log streams over USART3 (921 600 Bd) when no card logs, for a host
+/// attached by wire.
 const UART_LOG: bool = true;
 /// Crash-record text marking the SD card's bring-up: a watchdog reset there (a card that
 /// never leaves power-up) is reported with it, and the next boot leaves the card alone.
@@ -128,6 +139,10 @@ const SD_INIT_MARK: &str = "SD card bring-up";
 /// Guidance tones on at boot (the sound button toggles them; not stored until settings
 /// live in flash).
 const SOUND_ON: bool = true;
+/// IMU sampling (and sample-clock watchdog) rate, Hz.
+const IMU_HZ: f32 = PROFILE.imu.rate_hz;
+/// Core cycles of one IMU tick.
+const TICK_CYCLES: u32 = SYSCLK_HZ / PROFILE.imu.rate_hz as u32;
 
 /// One simultaneous sample of the three coils.
 #[derive(Clone, Copy)]
@@ -159,37 +174,97 @@ type AdcSpi = ExclusiveDevice<
     embedded_hal_bus::spi::NoDelay,
 >;
 
-/// What the DRDY interrupt owns.
-struct Sampler {
+/// The ADC and its DRDY pin: read by the DRDY task, re-armed and re-ranged by the
+/// processing task under the lock.
+pub struct Sampler {
     adc: Ads131m04<AdcSpi, DrdyAsserted>,
     drdy: PC7<Input>,
-    queue: Producer<'static, Sample>,
 }
 
-static SAMPLER: Mutex<RefCell<Option<Sampler>>> = Mutex::new(RefCell::new(None));
-/// ADC samples taken (the time base) and samples dropped (queue full or bus error).
+/// One IMU tick's result, stamped with the samples queued before it.
+pub struct ImuRecord {
+    /// ADC samples queued when the IMU was read (the processing task takes the record
+    /// after those samples: time order).
+    queued: u32,
+    /// The reading (`None`: no IMU up; `Some(Err)`: the read failed).
+    reading: Option<Result<ImuReading, ()>>,
+}
+
+/// A session-log record, formatted and written by the idle loop.
+pub enum LogItem {
+    /// An IMU sample (magnetometer calibrated).
+    Imu {
+        /// Board time, s.
+        t: f64,
+        /// Specific force, m/s².
+        acc: Vec3,
+        /// Angular rate, rad/s.
+        gyr: Vec3,
+        /// Magnetic field (calibrated), µT.
+        mag: Vec3,
+    },
+    /// A pulse the front end finished (or why it was withheld).
+    Pulse {
+        /// Board time of the pulse's centre, s.
+        t: f64,
+        /// Its field, or why there is none.
+        m: PulseMeasurement,
+        /// The front end's track.
+        src: Option<u8>,
+    },
+    /// An event with an optional count.
+    Event {
+        /// Board time, s.
+        t: f64,
+        /// The spec's event kind.
+        kind: &'static str,
+        /// Its cause.
+        why: Option<&'static str>,
+        /// The `count` key.
+        count: Option<i64>,
+    },
+}
+
+/// ADC samples taken (DRDY edges), queued, dropped (queue full), failed frames.
 static SAMPLES: AtomicU32 = AtomicU32::new(0);
+static QUEUED: AtomicU32 = AtomicU32::new(0);
 static DROPPED: AtomicU32 = AtomicU32::new(0);
-/// ADC frames that failed (CRC or bus error), for the health monitor.
 static FRAME_ERRORS: AtomicU32 = AtomicU32::new(0);
+/// IMU ticks missed (TIM2 released again before its last release ran) and IMU records
+/// lost to a full queue.
+static MISSED_TICKS: AtomicU32 = AtomicU32::new(0);
+static IMU_OVERRUNS: AtomicU32 = AtomicU32::new(0);
+/// Progress of the processing task (queue drained; IMU records handled), for the feeder.
+static DRAINS: AtomicU32 = AtomicU32::new(0);
+static TICKS: AtomicU32 = AtomicU32::new(0);
+/// The display after its last write; set when a bus clear asks for a re-init.
+static SCREEN_OK: AtomicBool = AtomicBool::new(false);
+static SCREEN_REINIT: AtomicBool = AtomicBool::new(false);
+/// The SD card's state for the display: 0 logging, 1 no card, 2 failed.
+static SD_MARK: AtomicU8 = AtomicU8::new(0);
 
 /// The application state in SRAM (not zeroed by the runtime: initialized with
 /// `Receiver::emplace` before use).
 #[unsafe(link_section = ".uninit.RECEIVER")]
 static mut RECEIVER: MaybeUninit<Receiver> = MaybeUninit::uninit();
-/// The ADC sample queue in core-coupled RAM (initialized in `main` before use).
+/// The ADC sample queue in core-coupled RAM (initialized at boot before use).
 #[unsafe(link_section = ".ccmram")]
 static mut QUEUE: MaybeUninit<Queue<Sample, QUEUE_LEN>> = MaybeUninit::uninit();
-/// The pulse front end in core-coupled RAM (initialized in `main` before use).
+/// The pulse front end in core-coupled RAM (initialized at boot before use).
 #[unsafe(link_section = ".ccmram")]
 static mut FRONTEND: MaybeUninit<Frontend> = MaybeUninit::uninit();
+/// The IMU record and session-log record queues in core-coupled RAM.
+#[unsafe(link_section = ".ccmram")]
+static mut IMU_Q: MaybeUninit<Queue<ImuRecord, { IMU_QUEUE as usize }>> = MaybeUninit::uninit();
+#[unsafe(link_section = ".ccmram")]
+static mut LOG_Q: MaybeUninit<Queue<LogItem, { LOG_QUEUE as usize }>> = MaybeUninit::uninit();
 /// The crash record: in `.uninit` SRAM, so a system reset keeps it (the runtime neither
 /// zeroes nor initialises it); read and cleared once at boot, written by the panic
 /// handler and by a starving watchdog feeder.
 #[unsafe(link_section = ".uninit.CRASH")]
 static mut CRASH: MaybeUninit<CrashRecord> = MaybeUninit::uninit();
 /// The session log (SD card file system, its block buffer, the UART): in SRAM, not on
-/// main's stack (initialized in `main` before use).
+/// a stack (initialized at boot before use; the idle loop's afterwards).
 #[unsafe(link_section = ".uninit.LOG")]
 static mut LOG: MaybeUninit<BoardLog<sd_card::SdioCard, stm32f4xx_hal::serial::Tx<pac::USART3>>> =
     MaybeUninit::uninit();
@@ -327,24 +402,68 @@ impl Recoverable for BoardI2c {
     }
 }
 
-type Bus = RefCell<Guarded<BoardI2c>>;
-type Screen<'a> = Ssd1306<
-    I2CInterface<RefCellDevice<'a, Guarded<BoardI2c>>>,
+/// The shared I2C bus (IMU, magnetometer, display), used only through [`with_bus`].
+struct BusCell(UnsafeCell<MaybeUninit<Guarded<BoardI2c>>>);
+
+// SAFETY: every access goes through `with_bus`, which masks every task that uses the bus
+// (priority ≤ the IMU tick's) for its duration: one user at a time.
+unsafe impl Sync for BusCell {}
+
+static BUS: BusCell = BusCell(UnsafeCell::new(MaybeUninit::uninit()));
+/// Set once the bus is in place (before any task runs).
+static BUS_READY: AtomicBool = AtomicBool::new(false);
+
+/// BASEPRI value of the bus's ceiling (the IMU tick's priority), as RTIC computes it.
+const BUS_CEILING: u8 = ((1 << pac::NVIC_PRIO_BITS) - PRIO_IMU) << (8 - pac::NVIC_PRIO_BITS);
+
+/// Runs `f` on the bus with the tasks that use it masked (the priority-ceiling lock
+/// RTIC uses for its resources, by hand: the drivers own a handle, not a borrow). The
+/// DRDY interrupt (above the ceiling) still runs. `None` before the bus is in place.
+fn with_bus<R>(f: impl FnOnce(&mut Guarded<BoardI2c>) -> R) -> Option<R> {
+    if !BUS_READY.load(Ordering::Acquire) {
+        return None;
+    }
+    let old = cortex_m::register::basepri::read();
+    // Raising BASEPRI only masks more; it is restored below.
+    cortex_m::register::basepri_max::write(BUS_CEILING);
+    // SAFETY: BUS_READY says the bus was written; every task that reaches this line runs
+    // at or below the ceiling, so no other access can preempt this one, and `f` does not
+    // call `with_bus` (the drivers below it know nothing of it).
+    let r = f(unsafe { &mut *(*BUS.0.get()).as_mut_ptr() });
+    // SAFETY: restores the value read above.
+    unsafe { cortex_m::register::basepri::write(old) };
+    Some(r)
+}
+
+/// A driver's handle on the shared bus: each transaction under [`with_bus`].
+#[derive(Clone, Copy)]
+pub struct BusHandle;
+
+impl embedded_hal::i2c::ErrorType for BusHandle {
+    type Error = i2c_bus::GuardError<stm32f4xx_hal::i2c::Error>;
+}
+
+impl embedded_hal::i2c::I2c for BusHandle {
+    fn transaction(
+        &mut self,
+        address: u8,
+        operations: &mut [embedded_hal::i2c::Operation<'_>],
+    ) -> Result<(), Self::Error> {
+        with_bus(|b| embedded_hal::i2c::I2c::transaction(b, address, operations)).unwrap_or(Err(
+            i2c_bus::GuardError::Bus(stm32f4xx_hal::i2c::Error::Bus),
+        ))
+    }
+}
+
+type Screen = Ssd1306<
+    I2CInterface<BusHandle>,
     DisplaySize128x64,
     ssd1306::mode::BufferedGraphicsMode<DisplaySize128x64>,
 >;
 
 /// Brings the IMU up on the shared bus (at boot and after a bus clear).
-fn imu_up<'a>(
-    bus: &'a Bus,
-    delay: &mut impl DelayNs,
-) -> Option<Imu<RefCellDevice<'a, Guarded<BoardI2c>>>> {
-    match Imu::with_mounting(
-        RefCellDevice::new(bus),
-        RefCellDevice::new(bus),
-        PROFILE.imu.mounting,
-        delay,
-    ) {
+fn imu_up(delay: &mut impl DelayNs) -> Option<Imu<BusHandle>> {
+    match Imu::with_mounting(BusHandle, BusHandle, PROFILE.imu.mounting, delay) {
         Ok(imu) => Some(imu),
         Err(_) => {
             defmt::error!("IMU not answering: no dead reckoning");
@@ -353,53 +472,18 @@ fn imu_up<'a>(
     }
 }
 
-#[interrupt]
-fn EXTI9_5() {
-    cortex_m::interrupt::free(|cs| {
-        let mut guard = SAMPLER.borrow(cs).borrow_mut();
-        let Some(s) = guard.as_mut() else { return };
-        s.drdy.clear_interrupt_pending_bit();
-        SAMPLES.fetch_add(1, Ordering::Relaxed);
-        let sample = match s.adc.read_frame() {
-            Ok(frame) => {
-                let v = s.adc.to_volts(&frame);
-                Sample {
-                    volts: [v[0], v[1], v[2]],
-                    clipped: frame.coils_saturated(),
-                }
-            }
-            // A corrupted frame keeps the time base: the DSP sees a clipped zero sample.
-            Err(_) => {
-                FRAME_ERRORS.fetch_add(1, Ordering::Relaxed);
-                Sample {
-                    volts: [0.0; 3],
-                    clipped: true,
-                }
-            }
-        };
-        if s.queue.enqueue(sample).is_err() {
-            DROPPED.fetch_add(1, Ordering::Relaxed);
-        }
-    });
-}
-
-/// IMU sampling (and sample-clock watchdog) rate, Hz.
-const IMU_HZ: f32 = PROFILE.imu.rate_hz;
-
 /// Reacts to the sample clock's verdict: a stalled ADC's DRDY is re-armed by reading one
 /// frame (it stays low until the frame is read, so no further edge would come).
-fn watch_adc(event: ClockEvent) -> ClockEvent {
+fn watch_adc(event: ClockEvent, sampler: &mut impl Mutex<T = Sampler>) -> ClockEvent {
     match event {
         ClockEvent::Running => {}
         ClockEvent::Resumed => defmt::info!("antenna ADC delivering again"),
         ClockEvent::Stalled { rearm: false } => {}
         ClockEvent::Stalled { rearm: true } => {
             defmt::warn!("antenna ADC stalled: re-arming DRDY");
-            cortex_m::interrupt::free(|cs| {
-                if let Some(s) = SAMPLER.borrow(cs).borrow_mut().as_mut() {
-                    let _ = s.adc.read_frame();
-                    s.drdy.clear_interrupt_pending_bit();
-                }
+            sampler.lock(|s| {
+                let _frame = s.adc.read_frame();
+                s.drdy.clear_interrupt_pending_bit();
             });
         }
     }
@@ -407,21 +491,21 @@ fn watch_adc(event: ClockEvent) -> ClockEvent {
 }
 
 /// Applies the DSP's change of analog setting (gain ranging): the coils' PGA gain in one
-/// register write (inside the DRDY handler's critical section) and the IF range switch.
+/// register write (under the DRDY task's lock) and the IF range switch.
 /// Samples already queued were taken in the old setting: the DSP discards them with the
 /// switch's settling. A failed gain write puts the switch and the DSP back on `from`.
-fn apply_range(frontend: &mut Frontend, pin: &mut PC3<Output>, change: RangeChange, queued: usize) {
+fn apply_range(
+    frontend: &mut Frontend,
+    pin: &mut PC3<Output>,
+    change: RangeChange,
+    queued: usize,
+    sampler: &mut impl Mutex<T = Sampler>,
+) {
     let set_pin = |pin: &mut PC3<Output>, r: IfRange| match r {
         IfRange::High => pin.set_low(),
         IfRange::Low => pin.set_high(),
     };
-    let gain_ok = cortex_m::interrupt::free(|cs| {
-        SAMPLER
-            .borrow(cs)
-            .borrow_mut()
-            .as_mut()
-            .is_some_and(|s| s.adc.set_coil_gains(change.to.gain).is_ok())
-    });
+    let gain_ok = sampler.lock(|s| s.adc.set_coil_gains(change.to.gain).is_ok());
     if gain_ok {
         set_pin(pin, change.to.if_range);
         frontend.extend_settle(queued);
@@ -441,513 +525,482 @@ fn log_t(clock: &SampleClock) -> f64 {
     clock.now().secs_f64()
 }
 
-/// Clears `screen` and draws `model` with the health overlay (a sensor fault over the
-/// status word, the battery gauge) on it; false if the display did not take it.
-fn show(
-    screen: &mut Screen<'_>,
-    model: &firmware::app::DisplayModel,
+/// What the display task draws: the newest model with the health overlay.
+#[derive(Clone, Copy)]
+pub struct View {
+    model: DisplayModel,
     fault: Option<Fault>,
     battery: Option<BatteryState>,
-    sd: SdState,
-) -> bool {
+    /// The menu, when open (drawn instead of the search screen).
+    menu: Option<Menu>,
+}
+
+/// The SD card's word for the display (published by the idle loop).
+fn sd_label() -> Option<&'static str> {
+    match SD_MARK.load(Ordering::Relaxed) {
+        0 => None,
+        1 => SdState::NoCard.fault_label(),
+        _ => Some("SD ERR"),
+    }
+}
+
+/// Clears `screen` and draws `view` with the health overlay (a sensor fault over the
+/// status word, the battery gauge, the SD mark); false if the display did not take it.
+fn show(screen: &mut Screen, view: &View) -> bool {
     screen.clear(BinaryColor::Off).ok();
-    display::draw(model, screen).is_ok()
-        && health::draw_overlay(fault, battery, screen).is_ok()
-        && health::draw_sd_mark(sd.fault_label(), screen).is_ok()
+    if let Some(m) = &view.menu {
+        return menu::draw(m, screen).is_ok() && screen.flush().is_ok();
+    }
+    display::draw(&view.model, screen).is_ok()
+        && health::draw_overlay(view.fault, view.battery, screen).is_ok()
+        && health::draw_sd_mark(sd_label(), screen).is_ok()
         && screen.flush().is_ok()
 }
 
-#[entry]
-fn main() -> ! {
-    let (Some(dp), Some(mut cp)) = (pac::Peripherals::take(), cortex_m::Peripherals::take()) else {
-        fatal("peripherals taken twice");
-    };
-    // Why the last reset happened: the reset controller's flags, then cleared.
-    let csr = dp.RCC.csr().read();
-    let watchdog_reset = csr.wdgrstf().bit_is_set();
-    dp.RCC.csr().modify(|_, w| w.rmvf().set_bit());
-    let crash_record = take_crash();
-    let last_reset = LastReset::from_boot(&crash_record, watchdog_reset);
+/// What the IMU tick task owns.
+pub struct Tick {
+    timer: CounterHz<pac::TIM2>,
+    imu: Option<Imu<BusHandle>>,
+    records: Producer<'static, ImuRecord>,
+    /// Lost releases, from the cycle counter.
+    misses: TickMisses,
+}
 
-    let mut rcc = dp.RCC.freeze(Config::hse(12.MHz()).sysclk(SYSCLK_HZ.Hz()));
-    // The watchdog first, so that a hang anywhere after this resets the board; it stops
-    // while a debugger halts the core.
-    let mut iwdg = IndependentWatchdog::new(dp.IWDG);
-    iwdg.stop_on_debug(&dp.DBGMCU, true);
-    iwdg.start(IWDG_PERIOD_MS.millis());
-    cp.DCB.enable_trace();
-    cp.DWT.enable_cycle_counter();
-    let mut delay = cp.SYST.delay(&rcc.clocks);
-    let mut syscfg = dp.SYSCFG.constrain(&mut rcc);
-    let mut exti = dp.EXTI;
-    let gpiob = dp.GPIOB.split(&mut rcc);
-    let gpioc = dp.GPIOC.split(&mut rcc);
-    let gpioa = dp.GPIOA.split(&mut rcc);
-    // Battery: the Feather's ½ divider on PA3 (ADC1 channel 3), read once a second. The
-    // HAL calibrates VDDA from the factory VREFINT value, so the reading does not assume
-    // exactly 3.3 V.
-    let vbat_pin = gpioa.pa3.into_analog();
-    let mut mcu_adc = Adc::new(dp.ADC1, true, AdcConfig::default(), &mut rcc);
-    let vdda_v = mcu_adc.reference_voltage() as f32 / 1000.0;
+/// What the processing task owns.
+pub struct Proc {
+    samples: Consumer<'static, Sample>,
+    records: Consumer<'static, ImuRecord>,
+    log: Producer<'static, LogItem>,
+    frontend: &'static mut Frontend,
+    receiver: &'static mut Receiver,
+    rate: f32,
+    clock: SampleClock,
+    taken: u32,
+    last_imu_t: Option<Instant>,
+    drawn: Option<Instant>,
+    shown: DisplayModel,
+    sensors: SensorHealth,
+    fault: Option<Fault>,
+    battery: Battery,
+    mcu_adc: Adc<pac::ADC1>,
+    vbat_pin: PA3<stm32f4xx_hal::gpio::Analog>,
+    vdda_v: f32,
+    fault_led: PC1<Output>,
+    if_range: PC3<Output>,
+    mark: MarkButton<PC6<Input>>,
+    sound_pin: PC2<Input>,
+    sound_low: u8,
+    press: PressDetector,
+    menu: Menu,
+    muted: bool,
+    chirp_until_ms: u64,
+    playing: Option<u32>,
+    buzz_timer: PwmHzManager<pac::TIM4>,
+    buzzer: PwmChannel<pac::TIM4, 2>,
+    mag_cal: Option<MagCalibration>,
+    ms_clock: MonotonicMs,
+    window_ticks: u32,
+    window_samples: u32,
+    window_errors: u32,
+    bus_stats: i2c_bus::BusStats,
+    /// Overruns counted so far, by kind, and what was last logged.
+    reported: [u32; 4],
+    log_overruns: u32,
+}
 
-    match last_reset {
-        LastReset::Clean => {}
-        LastReset::Panic(m) => defmt::error!("last reset: panic: {=str}", m),
-        LastReset::Starved(m) => defmt::error!("last reset: watchdog, stalled: {=str}", m),
-        LastReset::WatchdogHung => defmt::error!("last reset: watchdog, main loop hung"),
-    }
+/// What the display task owns.
+pub struct Display {
+    screen: Screen,
+}
 
-    // Session log first, so everything after it can be recorded: the microSD card (its
-    // bring-up marked in the crash record, see SD_INIT_MARK) and the UART stream.
-    let gpiod = dp.GPIOD.split(&mut rcc);
-    // The switch is read after the SDIO set-up, so the pull-up has settled.
-    let card_detect = gpiob.pb12.into_pull_up_input();
-    let sdio = stm32f4xx_hal::sdio::Sdio::new(
-        dp.SDIO,
-        (
-            gpioc.pc12, gpiod.pd2, gpioc.pc8, gpioc.pc9, gpioc.pc10, gpioc.pc11,
-        ),
-        &mut rcc,
-    );
-    let card_in = card_detect.is_low();
-    let skip_sd = matches!(last_reset, LastReset::Starved(m) if m == SD_INIT_MARK);
-    store_crash(&CrashRecord::new(
-        CrashKind::Starved,
-        format_args!("{SD_INIT_MARK}"),
-    ));
-    iwdg.feed();
-    let sd = sd_card::mount(sdio, card_in, skip_sd, 0);
-    iwdg.feed();
-    // Bring-up over: clear the marker (the last reset's record was read before it).
-    let _marker = take_crash();
-    let Ok(uart) = dp.USART3.tx(gpiob.pb10, 921_600.bps(), &mut rcc) else {
-        fatal("USART3 configuration refused");
-    };
-    // SAFETY: the only reference ever taken to LOG, here, once; no interrupt uses it.
-    let log = unsafe { &mut *core::ptr::addr_of_mut!(LOG) }
-        .write(BoardLog::new(sd, UART_LOG.then_some(uart)));
-    // The unit's settings from flash sector 11 (defaults, with the reason, when erased or
-    // corrupt).
-    // SAFETY: SETTINGS_LEN bytes of memory-mapped flash inside the reserved sector
-    // (memory.x), always readable; nothing writes flash while this boot reads it.
-    let stored = unsafe {
-        core::slice::from_raw_parts(settings::SETTINGS_ADDR as *const u8, settings::SETTINGS_LEN)
-    };
-    let (settings, settings_error) = Settings::load(stored);
-    let step_length_m = settings
-        .calibration
-        .step_length_m
-        .or(PROFILE.defaults.step_length_m);
-    let earth = settings.earth_field();
-    log.header(PROFILE.imu.rate_hz, &earth, true);
-    log.reset(0.0, &last_reset);
-    let region = settings::REGIONS
-        .get(usize::from(settings.region))
-        .map_or("?", |r| r.name);
-    log.event(
-        0.0,
-        "settings",
-        Some(if settings_error.is_some() {
-            "defaults"
-        } else {
-            "stored"
-        }),
-        &[
-            // "none": not calibrated (the step detector's default length applies).
-            (
-                "step_length_m",
-                step_length_m.map_or(Detail::Text("none"), Detail::Num),
-            ),
-            ("mode", Detail::Text("sog")),
-            ("volume", Detail::Int(i64::from(settings.volume))),
-            ("region", Detail::Text(region)),
-            (
-                "antenna_cal",
-                Detail::Flag(settings.calibration.antenna.is_some()),
-            ),
-            ("mag_cal", Detail::Flag(settings.calibration.mag.is_some())),
-        ],
-    );
-    if let Some(e) = settings_error {
-        defmt::warn!("settings: {}; defaults apply", e);
-    }
-    // The logged and processed magnetometer reading is the calibrated one (the spec's
-    // body-frame field), so a replay needs no calibration of its own.
-    let mag_cal = settings.calibration.mag;
-    match log.sd_state() {
-        SdState::Logging(n) => defmt::info!("SD card: logging to session {=u16}", n),
-        SdState::NoCard => defmt::warn!("SD card: none inserted, log on UART only"),
-        SdState::Failed(e) => defmt::error!("SD card: {}", e),
-    }
+/// What the idle loop owns: the session log's writer and the watchdog's feeder.
+pub struct Writer {
+    log: &'static mut BoardLog<sd_card::SdioCard, stm32f4xx_hal::serial::Tx<pac::USART3>>,
+    items: Consumer<'static, LogItem>,
+    iwdg: IndependentWatchdog,
+    ms_clock: MonotonicMs,
+    watch: ProgressWatch,
+    starving: bool,
+    progress: [u32; 2],
+    last_t: f64,
+    /// The UART while the card logs (attached when the card fails).
+    spare_uart: Option<stm32f4xx_hal::serial::Tx<pac::USART3>>,
+}
 
-    // Antenna ADC on SPI2, mode 1.
-    let mode = spi::Mode {
-        polarity: spi::Polarity::IdleLow,
-        phase: spi::Phase::CaptureOnSecondTransition,
-    };
-    let spi_bus = dp.SPI2.spi(
-        (Some(gpiob.pb13), Some(gpiob.pb14), Some(gpiob.pb15)),
-        mode,
-        8.MHz(),
-        &mut rcc,
-    );
-    let Ok(adc_spi) = ExclusiveDevice::new_no_delay(spi_bus, gpiob.pb9.into_push_pull_output());
-    let mut adc = Ads131m04::new(adc_spi, DrdyAsserted);
-    let adc_ok = adc.reset(&mut delay).is_ok()
-        && adc.check_id().is_ok()
-        && adc.configure(&PROFILE.adc.config).is_ok();
-    if !adc_ok {
-        defmt::error!("antenna ADC not answering: no pulses will be received");
-    }
-    iwdg.feed();
-
-    let mut imu_tick = dp.TIM2.counter_hz(&mut rcc);
-    if imu_tick.start((IMU_HZ as u32).Hz()).is_err() {
-        defmt::error!("IMU timer refused 100 Hz");
-    }
-
-    // Buzzer: a passive piezo on D9 (PB8), TIM4 channel 3 PWM at the tone's frequency and
-    // 50 % duty; duty 0 is silence.
-    let (mut buzz_timer, (_, _, buzz_ch, _)) = dp.TIM4.pwm_hz(2.kHz(), &mut rcc);
-    let mut buzzer = buzz_ch.with(gpiob.pb8);
-    buzzer.set_duty(0);
-    buzzer.enable();
-
-    // IMU and display share I2C1. A reset may have cut a transfer with a slave still
-    // holding SDA: clear the bus on the bare pins before the peripheral takes them.
-    let mut scl = gpiob.pb6.into_open_drain_output();
-    let mut sda = gpiob.pb7.into_open_drain_output();
-    match clear_pins(&mut scl, &mut sda) {
-        Ok(Cleared { pulses: 0 }) => {}
-        Ok(Cleared { pulses }) => {
-            defmt::warn!("I2C bus held at boot: freed by {=u8} pulses", pulses)
-        }
-        Err(_) => defmt::error!("I2C bus stuck at boot and not freed"),
-    }
-    let i2c = I2c::new(dp.I2C1, (scl, sda), I2C_HZ.Hz(), &mut rcc);
-    // The bus owns the clock controller from here (it rebuilds I2C1 after a clear).
-    let bus: Bus = RefCell::new(Guarded::new(BoardI2c {
-        i2c: Some(i2c),
-        rcc,
-    }));
-    let mut imu = imu_up(&bus, &mut delay);
-    let mut sensors = SensorHealth::new();
-    sensors.adc_boot(adc_ok);
-    sensors.imu_up(imu.is_some());
-    let mut battery = Battery::new();
-    // The red LED tells of a fault even when the display is what failed.
-    let mut fault_led = gpioc.pc1.into_push_pull_output();
-    let mut screen: Screen<'_> = Ssd1306::new(
-        I2CDisplayInterface::new(RefCellDevice::new(&bus)),
-        DisplaySize128x64,
-        DisplayRotation::Rotate0,
-    )
-    .into_buffered_graphics_mode();
-    let mut screen_ok = screen.init().is_ok();
-    iwdg.feed();
-
-    // The last reset's report, on the display for a while (the watchdog fed meanwhile).
-    if last_reset != LastReset::Clean && screen_ok {
-        screen.clear(BinaryColor::Off).ok();
-        if crash::draw_last_reset(&last_reset, &mut screen).is_ok() && screen.flush().is_ok() {
-            for _ in 0..RESET_REPORT_MS / 100 {
-                delay.delay_ms(100);
-                iwdg.feed();
-            }
+impl Proc {
+    /// Queues a session-log record; a full queue loses it (counted, logged later).
+    fn log(&mut self, item: LogItem) {
+        if self.log.enqueue(item).is_err() {
+            self.log_overruns = self.log_overruns.wrapping_add(1);
         }
     }
 
-    // The application in SRAM.
-    let cfg = PROFILE.app_config(earth, step_length_m);
-    // SAFETY: the only reference ever taken to RECEIVER, here, once, before any interrupt
-    // that could run is enabled; no interrupt touches it.
-    let slot = unsafe { &mut *core::ptr::addr_of_mut!(RECEIVER) };
-    let Ok(receiver) = Receiver::emplace(slot, cfg) else {
-        fatal("default configuration refused");
-    };
-    // The nominal calibration of the design until the unit's bench calibration is stored.
-    let fe_cfg = PROFILE.frontend_config(&settings.calibration.antenna_or(&PROFILE.analog.nominal));
-    let rate = fe_cfg.sample_rate_hz;
-    let Ok(new_frontend) = Frontend::new(fe_cfg) else {
-        fatal("front-end configuration refused");
-    };
-    // SAFETY: the only reference ever taken to FRONTEND, here, once; no interrupt uses it.
-    let frontend = unsafe { &mut *core::ptr::addr_of_mut!(FRONTEND) }.write(new_frontend);
-
-    // ADC samples flow through the queue from the DRDY interrupt.
-    // SAFETY: the only reference ever taken to QUEUE, here, once, before the DRDY
-    // interrupt (its producer's only user) is unmasked.
-    let queue = unsafe { &mut *core::ptr::addr_of_mut!(QUEUE) }.write(Queue::new());
-    let (producer, mut consumer): (Producer<'static, Sample>, Consumer<'static, Sample>) =
-        queue.split();
-    // The mark button: flags the victim being guided to as found.
-    let mut mark = MarkButton::new(gpioc.pc6.into_pull_up_input());
-    // The sound button: the same debounced press, on D12.
-    let mut sound_button = MarkButton::new(gpioc.pc2.into_pull_up_input());
-    // Volume steps are not wired to the buzzer yet (50 % duty): 0 mutes.
-    let mut muted = !SOUND_ON || settings.volume == 0;
-    let mut chirp_until_ms = 0u64;
-    // The IF range switch starts in the high range, the ADC at the profile's gain: the
-    // DSP's starting setting (`BoardProfile::start_range`).
-    let mut if_range = gpioc.pc3.into_push_pull_output();
-    if_range.set_low();
-    let mut drdy = gpioc.pc7.into_pull_up_input();
-    drdy.make_interrupt_source(&mut syscfg);
-    drdy.trigger_on_edge(&mut exti, Edge::Falling);
-    drdy.enable_interrupt(&mut exti);
-    cortex_m::interrupt::free(|cs| {
-        SAMPLER.borrow(cs).replace(Some(Sampler {
-            adc,
-            drdy,
-            queue: producer,
-        }));
-    });
-    // SAFETY: the handler and its state are in place; unmasking cannot break a critical section.
-    unsafe { cortex_m::peripheral::NVIC::unmask(pac::Interrupt::EXTI9_5) };
-
-    defmt::info!(
-        "receiver running (ADC {=bool}, display {=bool})",
-        adc_ok,
-        screen_ok
-    );
-
-    let mut taken: u32 = 0;
-    // Board time: samples taken through the front end, kept running by the IMU timer if
-    // the ADC stalls (see `firmware::timebase`).
-    let Ok(mut clock) = SampleClock::new(rate, IMU_HZ, taken) else {
-        fatal("sample clock refused its rates");
-    };
-    let mut last_imu_t: Option<Instant> = None;
-    // Board time of the last redraw.
-    let mut drawn: Option<Instant> = None;
-    // Progress of the main loop's work, on the cycle counter's clock.
-    let mut ms_clock = MonotonicMs::new(SYSCLK_HZ / 1000, DWT::cycle_count());
-    let mut watch = ProgressWatch::new(PROGRESS_LIMIT_MS, ms_clock.now_ms(DWT::cycle_count()));
-    let mut starving = false;
-    let mut bus_stats = bus.borrow().stats();
-    let mut fault = sensors.fault();
-    if let Some(f) = fault {
-        defmt::error!("sensor fault at boot: {=str}", f.label());
+    /// An event record now.
+    fn event(&mut self, kind: &'static str, why: Option<&'static str>, count: Option<i64>) {
+        let t = log_t(&self.clock);
+        self.log(LogItem::Event {
+            t,
+            kind,
+            why,
+            count,
+        });
     }
-    let sd_fault = log.sd_state().fault_label().is_some();
-    fault_led.set_state((fault.is_some() || !screen_ok || sd_fault).into());
-    // Ticks since the last one-second health window, and the counters at its start.
-    let mut window_ticks = 0u32;
-    let mut window_samples = SAMPLES.load(Ordering::Relaxed);
-    let mut window_errors = FRAME_ERRORS.load(Ordering::Relaxed);
-    // What the screen shows last (the tones follow it) and the tone playing.
-    let mut shown = receiver.display_model();
-    let mut playing: Option<u32> = None;
-    loop {
-        while let Some(sample) = consumer.dequeue() {
-            taken = taken.wrapping_add(1);
-            match frontend.push(sample.volts, sample.clipped) {
-                Ok(Some(pulse)) => {
-                    // The DSP counts only the samples it saw: stalls are added back.
-                    let t_pulse = Instant::from_micros(
-                        pulse_centre_us(pulse.start_sample, pulse.duration_s, rate)
-                            + clock.offset_us(),
-                    );
-                    log.pulse(t_pulse.secs_f64(), &pulse.measurement, pulse.src);
-                    let model = match pulse.measurement {
-                        PulseMeasurement::Field(h) => {
-                            receiver.on_pulse(t_pulse, &h, pulse.src).ok()
-                        }
-                        // Overlap, clipping, truncation: held out of the estimators.
-                        _ => Some(receiver.on_withheld(t_pulse)),
-                    };
-                    if let Some(model) = model {
-                        shown = model;
-                    }
-                    if let Some(model) = model.filter(|_| screen_ok) {
-                        drawn = Some(clock.now());
-                        if !show(&mut screen, &model, fault, battery.state(), log.sd_state()) {
-                            defmt::warn!("display write failed");
-                        }
-                    }
-                }
-                Ok(None) => {}
-                Err(_) => defmt::warn!("front end refused a sample"),
-            }
-            if let Some(change) = frontend.take_range_change() {
-                apply_range(frontend, &mut if_range, change, consumer.len());
-            }
-        }
-        watch.progress(Work::Samples, ms_clock.now_ms(DWT::cycle_count()));
-        if imu_tick.wait().is_ok() {
-            watch.progress(Work::Ticks, ms_clock.now_ms(DWT::cycle_count()));
-            sensors.adc_tick(watch_adc(clock.tick(taken)));
-            window_ticks += 1;
-            if window_ticks >= IMU_HZ as u32 {
-                window_ticks = 0;
-                let (n, e) = (
-                    SAMPLES.load(Ordering::Relaxed),
-                    FRAME_ERRORS.load(Ordering::Relaxed),
+
+    /// Hands the display the newest model.
+    fn redraw(&mut self, view: &mut impl Mutex<T = Option<View>>) {
+        self.drawn = Some(self.clock.now());
+        let v = View {
+            model: self.shown,
+            fault: self.fault,
+            battery: self.battery.state(),
+            menu: self.menu.item().map(|_| self.menu),
+        };
+        view.lock(|slot| *slot = Some(v));
+        rtic::pend(pac::Interrupt::USART2);
+    }
+
+    /// One ADC sample through the front end; a finished pulse through the estimator.
+    fn on_sample(
+        &mut self,
+        sample: Sample,
+        sampler: &mut impl Mutex<T = Sampler>,
+        view: &mut impl Mutex<T = Option<View>>,
+    ) {
+        self.taken = self.taken.wrapping_add(1);
+        match self.frontend.push(sample.volts, sample.clipped) {
+            Ok(Some(pulse)) => {
+                // The DSP counts only the samples it saw: stalls are added back.
+                let t_pulse = Instant::from_micros(
+                    pulse_centre_us(pulse.start_sample, pulse.duration_s, self.rate)
+                        + self.clock.offset_us(),
                 );
-                let failed = e.wrapping_sub(window_errors);
-                sensors.adc_window(n.wrapping_sub(window_samples), failed);
-                if failed > 0 {
-                    let count = Detail::Int(i64::from(failed));
-                    log.event(
-                        log_t(&clock),
-                        "read_error",
-                        Some("adc"),
-                        &[("count", count)],
-                    );
-                }
-                (window_samples, window_errors) = (n, e);
-                let raw = mcu_adc.convert(&vbat_pin, SampleTime::Cycles_480);
-                let was_low = battery.state().is_some_and(|b| b.low);
-                let volts = health::battery_volts(raw, vdda_v, pins::BATTERY_DIVIDER);
-                if let Some(b) = battery.update(volts).filter(|b| b.low != was_low) {
-                    if b.low {
-                        defmt::warn!("battery low: {=f32} V", b.volts);
-                    } else {
-                        defmt::info!("battery no longer low: {=f32} V", b.volts);
+                // Logged before it is processed: a fault in the estimator loses no record.
+                self.log(LogItem::Pulse {
+                    t: t_pulse.secs_f64(),
+                    m: pulse.measurement,
+                    src: pulse.src,
+                });
+                let model = match pulse.measurement {
+                    PulseMeasurement::Field(h) => {
+                        self.receiver.on_pulse(t_pulse, &h, pulse.src).ok()
                     }
+                    // Overlap, clipping, truncation: held out of the estimators.
+                    _ => Some(self.receiver.on_withheld(t_pulse)),
+                };
+                if let Some(model) = model {
+                    self.shown = model;
+                    self.redraw(view);
                 }
             }
-            // The mark button, polled at the IMU tick (debounced over 3 ticks).
-            let mut redraw = false;
-            if mark.poll() {
-                log.event(log_t(&clock), "mark", None, &[]);
-                match receiver.mark() {
-                    Ok(n) => defmt::info!("victim {=u8} marked", n),
-                    Err(_) => defmt::info!("mark: no victim to mark"),
-                }
-                redraw = true;
-            }
-            let t = clock.now();
-            // A fault shows at once and is logged when it comes and goes.
-            sensors.bus_stuck(bus.borrow().stuck());
-            let now_fault = sensors.fault();
-            if now_fault != fault {
-                match now_fault {
-                    Some(f) => defmt::error!("sensor fault: {=str}", f.label()),
-                    None => defmt::info!("sensor fault cleared"),
-                }
-                let why = now_fault.map_or("cleared", Fault::label);
-                log.event(log_t(&clock), "fault", Some(why), &[]);
-                fault = now_fault;
-                redraw = true;
-            }
-            // The SD card: flushed when due; a failure shows and is reported.
-            let (sd_changed, errors) = log.tick(log_t(&clock), ms_clock.now_ms(DWT::cycle_count()));
-            if let Some(state) = sd_changed {
-                defmt::error!("SD card: {}", state);
-                redraw = true;
-            }
-            if let Some(e) = errors {
-                defmt::warn!("session log errors: {}", e);
-            }
-            let sd_fault = log.sd_state().fault_label().is_some();
-            fault_led.set_state((fault.is_some() || !screen_ok || sd_fault).into());
-            // Pulses redraw the screen; without them it is redrawn at least every
-            // REDRAW_MAX_US, so that "NO SIGNAL" and the arrow to a silent victim (carried
-            // over the walk) show. Not at every tick: a flush holds the shared I2C bus
-            // ≈ 25 ms, two or three IMU ticks.
-            if redraw
-                || drawn.is_none_or(|d| t.micros().saturating_sub(d.micros()) >= REDRAW_MAX_US)
-            {
-                drawn = Some(t);
-                shown = receiver.display_model();
-                if screen_ok && !show(&mut screen, &shown, fault, battery.state(), log.sd_state()) {
-                    defmt::warn!("display write failed");
-                }
-            }
-            // The tone of the moment (10 ms edges at the tick).
-            let now_ms = ms_clock.now_ms(DWT::cycle_count());
-            if sound_button.poll() {
-                muted = !muted;
-                if !muted {
-                    chirp_until_ms = now_ms + sound::CHIRP_MS;
-                }
-                defmt::info!("sound {=str}", if muted { "off" } else { "on" });
-            }
-            let tone = if now_ms < chirp_until_ms {
-                Some(sound::CHIRP_HZ)
-            } else {
-                sound::tone_at(
-                    &SoundInput {
-                        status: shown.status,
-                        distance_m: shown.distance_m,
-                        fault,
-                        muted,
-                    },
-                    now_ms,
-                )
-            };
-            if tone != playing {
-                match tone {
-                    Some(hz) => {
-                        buzz_timer.set_period(hz.Hz());
-                        buzzer.set_duty(buzzer.get_max_duty() / 2);
-                    }
-                    None => buzzer.set_duty(0),
-                }
-                playing = tone;
-            }
-            // A short hole in the ADC's samples holds the clock: skip that tick's sample.
-            if let Some(imu) = imu.as_mut().filter(|_| last_imu_t.is_none_or(|l| t > l)) {
-                last_imu_t = Some(t);
-                match imu.read() {
-                    Ok(r) => {
-                        let mag = mag_cal.map_or(r.mag, |c| c.apply(&r.mag));
-                        log.imu(t.secs_f64(), &r.acc, &r.gyr, Some(&mag));
-                        if receiver.on_imu(t, &r.acc, &r.gyr, Some(&mag)).is_err() {
-                            defmt::warn!("IMU sample refused");
-                        }
-                        sensors.imu_read(true);
-                    }
-                    Err(_) => {
-                        defmt::warn!("IMU read failed");
-                        log.event(t.secs_f64(), "read_error", Some("imu"), &[]);
-                        sensors.imu_read(false);
-                    }
-                }
-            }
-            // A bus clear may have reset the devices or left them half-configured:
-            // bring them up again.
-            let stats = bus.borrow().stats();
-            if stats != bus_stats {
-                defmt::warn!(
-                    "I2C bus: {=u32} errors, {=u32} stuck, {=u32} cleared, {=u32} clears failed",
-                    stats.errors,
-                    stats.stuck,
-                    stats.recoveries,
-                    stats.failed_recoveries
-                );
-                bus_stats = stats;
-            }
-            if bus.borrow_mut().take_reinit() {
-                imu = imu_up(&bus, &mut delay);
-                sensors.imu_up(imu.is_some());
-                screen_ok = screen.init().is_ok();
-                defmt::warn!("I2C devices re-initialised (display {=bool})", screen_ok);
-            }
+            Ok(None) => {}
+            Err(_) => defmt::warn!("front end refused a sample"),
         }
-        let dropped = DROPPED.load(Ordering::Relaxed);
-        if dropped != 0 {
-            let count = Detail::Int(i64::from(dropped));
-            log.event(
-                log_t(&clock),
-                "overrun",
-                Some("adc_queue"),
-                &[("count", count)],
-            );
+        if let Some(change) = self.frontend.take_range_change() {
+            let queued = self.samples.len();
+            apply_range(self.frontend, &mut self.if_range, change, queued, sampler);
+        }
+    }
+
+    /// One 100 Hz tick: the clock, health, battery, buttons, tones and the IMU sample.
+    fn on_tick(
+        &mut self,
+        record: ImuRecord,
+        sampler: &mut impl Mutex<T = Sampler>,
+        view: &mut impl Mutex<T = Option<View>>,
+    ) {
+        self.sensors
+            .adc_tick(watch_adc(self.clock.tick(self.taken), sampler));
+        self.window_ticks += 1;
+        if self.window_ticks >= IMU_HZ as u32 {
+            self.window_ticks = 0;
+            self.second();
+        }
+        let mut redraw = self.buttons();
+        // The mark button, polled at the tick (debounced over 3 ticks); in the menu it
+        // leaves the menu.
+        let marked = self.mark.poll();
+        if marked && self.menu.item().is_some() {
+            if let Some(MenuEvent::Closed { changed }) = self.menu.mark_button() {
+                self.close_menu(changed);
+            }
+            redraw = true;
+        } else if marked {
+            self.event("mark", None, None);
+            match self.receiver.mark() {
+                Ok(n) => defmt::info!("victim {=u8} marked", n),
+                Err(_) => defmt::info!("mark: no victim to mark"),
+            }
+            self.shown = self.receiver.display_model();
+            redraw = true;
+        }
+        let t = self.clock.now();
+        // A fault shows at once and is logged when it comes and goes.
+        let (stuck, stats) = with_bus(|b| (b.stuck(), b.stats())).unwrap_or_default();
+        self.sensors.bus_stuck(stuck);
+        if stats != self.bus_stats {
             defmt::warn!(
-                "{=u32} ADC samples dropped of {=u32}",
-                dropped,
-                SAMPLES.load(Ordering::Relaxed)
+                "I2C bus: {=u32} errors, {=u32} stuck, {=u32} cleared, {=u32} clears failed",
+                stats.errors,
+                stats.stuck,
+                stats.recoveries,
+                stats.failed_recoveries
             );
-            DROPPED.store(0, Ordering::Relaxed);
+            self.bus_stats = stats;
         }
-        match watch.verdict(ms_clock.now_ms(DWT::cycle_count())) {
-            Verdict::Feed => iwdg.feed(),
+        self.sensors.imu_up(record.reading.is_some());
+        let now_fault = self.sensors.fault();
+        if now_fault != self.fault {
+            match now_fault {
+                Some(f) => defmt::error!("sensor fault: {=str}", f.label()),
+                None => defmt::info!("sensor fault cleared"),
+            }
+            self.event(
+                "fault",
+                Some(now_fault.map_or("cleared", Fault::label)),
+                None,
+            );
+            self.fault = now_fault;
+            redraw = true;
+        }
+        let screen_ok = SCREEN_OK.load(Ordering::Relaxed);
+        let led = self.fault.is_some() || !screen_ok || sd_label().is_some();
+        self.fault_led.set_state(led.into());
+        // Pulses redraw the screen; without them it is redrawn at least every
+        // REDRAW_MAX_US, so that "NO SIGNAL" and the arrow to a silent victim show.
+        if redraw
+            || self
+                .drawn
+                .is_none_or(|d| t.micros().saturating_sub(d.micros()) >= REDRAW_MAX_US)
+        {
+            self.shown = self.receiver.display_model();
+            self.redraw(view);
+        }
+        self.tone();
+        // A short hole in the ADC's samples holds the clock: skip that tick's sample.
+        if let Some(reading) = record
+            .reading
+            .filter(|_| self.last_imu_t.is_none_or(|l| t > l))
+        {
+            self.last_imu_t = Some(t);
+            match reading {
+                Ok(r) => {
+                    let mag = self.mag_cal.map_or(r.mag, |c| c.apply(&r.mag));
+                    self.log(LogItem::Imu {
+                        t: t.secs_f64(),
+                        acc: r.acc,
+                        gyr: r.gyr,
+                        mag,
+                    });
+                    if self.receiver.on_imu(t, &r.acc, &r.gyr, Some(&mag)).is_err() {
+                        defmt::warn!("IMU sample refused");
+                    }
+                    self.sensors.imu_read(true);
+                }
+                Err(()) => {
+                    defmt::warn!("IMU read failed");
+                    self.event("read_error", Some("imu"), None);
+                    self.sensors.imu_read(false);
+                }
+            }
+        }
+        self.overruns();
+        TICKS.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Once a second: the ADC's health window and the battery.
+    fn second(&mut self) {
+        let (n, e) = (
+            SAMPLES.load(Ordering::Relaxed),
+            FRAME_ERRORS.load(Ordering::Relaxed),
+        );
+        let failed = e.wrapping_sub(self.window_errors);
+        self.sensors
+            .adc_window(n.wrapping_sub(self.window_samples), failed);
+        if failed > 0 {
+            self.event("read_error", Some("adc"), Some(i64::from(failed)));
+        }
+        (self.window_samples, self.window_errors) = (n, e);
+        let raw = self.mcu_adc.convert(&self.vbat_pin, SampleTime::Cycles_480);
+        let was_low = self.battery.state().is_some_and(|b| b.low);
+        let volts = health::battery_volts(raw, self.vdda_v, pins::BATTERY_DIVIDER);
+        if let Some(b) = self.battery.update(volts).filter(|b| b.low != was_low) {
+            if b.low {
+                defmt::warn!("battery low: {=f32} V", b.volts);
+            } else {
+                defmt::info!("battery no longer low: {=f32} V", b.volts);
+            }
+        }
+    }
+
+    /// The sound button (debounced level → short and long presses → the menu): true
+    /// when the menu changed on screen.
+    fn buttons(&mut self) -> bool {
+        let now_ms = self.ms_clock.now_ms(DWT::cycle_count());
+        // Pressed after 3 low polls in a row (30 ms: past a switch's bounce).
+        if self.sound_pin.is_low() {
+            self.sound_low = self.sound_low.saturating_add(1);
+        } else {
+            self.sound_low = 0;
+        }
+        let Some(press) = self.press.update(self.sound_low >= 3, now_ms) else {
+            return false;
+        };
+        match self.menu.sound_button(press) {
+            MenuEvent::ToggleMute => {
+                self.muted = !self.muted;
+                if !self.muted {
+                    self.chirp_until_ms = now_ms + sound::CHIRP_MS;
+                }
+                defmt::info!("sound {=str}", if self.muted { "off" } else { "on" });
+                false
+            }
+            MenuEvent::Start(_) => {
+                // The step walk and the magnetometer calibration are not wired yet.
+                defmt::warn!("menu: procedure not available on this build");
+                true
+            }
+            MenuEvent::Closed { changed } => {
+                self.close_menu(changed);
+                true
+            }
+            MenuEvent::Opened | MenuEvent::Changed | MenuEvent::None => true,
+        }
+    }
+
+    /// The menu closed: its settings apply from now on (volume 0 mutes); they are logged,
+    /// not yet stored (the flash write is not wired).
+    fn close_menu(&mut self, changed: bool) {
+        if changed {
+            let s = *self.menu.settings();
+            self.muted = s.volume == 0;
+            defmt::info!("settings changed (volume {=u8}); not stored", s.volume);
+            self.event("settings", Some("menu"), Some(i64::from(s.volume)));
+        }
+    }
+
+    /// The tone of the moment (10 ms edges at the tick).
+    fn tone(&mut self) {
+        let now_ms = self.ms_clock.now_ms(DWT::cycle_count());
+        let tone = if now_ms < self.chirp_until_ms {
+            Some(sound::CHIRP_HZ)
+        } else {
+            sound::tone_at(
+                &SoundInput {
+                    status: self.shown.status,
+                    distance_m: self.shown.distance_m,
+                    fault: self.fault,
+                    muted: self.muted,
+                },
+                now_ms,
+            )
+        };
+        if tone != self.playing {
+            match tone {
+                Some(hz) => {
+                    self.buzz_timer.set_period(hz.Hz());
+                    self.buzzer.set_duty(self.buzzer.get_max_duty() / 2);
+                }
+                None => self.buzzer.set_duty(0),
+            }
+            self.playing = tone;
+        }
+    }
+
+    /// Logs each kind of overrun whose count grew: samples dropped (queue full), IMU
+    /// ticks missed, IMU records lost (queue full), log records lost (queue full; logged
+    /// once the queue has room again).
+    fn overruns(&mut self) {
+        let now = [
+            DROPPED.load(Ordering::Relaxed),
+            MISSED_TICKS.load(Ordering::Relaxed),
+            IMU_OVERRUNS.load(Ordering::Relaxed),
+            self.log_overruns,
+        ];
+        const WHY: [&str; 4] = ["adc_queue", "imu_tick", "imu_queue", "log_queue"];
+        for ((n, last), why) in now.into_iter().zip(self.reported).zip(WHY) {
+            let new = n.wrapping_sub(last);
+            if new > 0 {
+                defmt::warn!("overrun {=str}: {=u32}", why, new);
+                self.event("overrun", Some(why), Some(i64::from(new)));
+            }
+        }
+        self.reported = now;
+    }
+}
+
+impl Writer {
+    /// One pass of the idle loop: the queued records to the log, the card's flush, the
+    /// watchdog.
+    fn pass(&mut self) {
+        while let Some(item) = self.items.dequeue() {
+            match item {
+                LogItem::Imu { t, acc, gyr, mag } => {
+                    self.last_t = t;
+                    self.log.imu(t, &acc, &gyr, Some(&mag));
+                }
+                LogItem::Pulse { t, m, src } => {
+                    self.last_t = t;
+                    self.log.pulse(t, &m, src);
+                }
+                LogItem::Event {
+                    t,
+                    kind,
+                    why,
+                    count,
+                } => {
+                    self.last_t = t;
+                    match count {
+                        Some(c) => self.log.event(t, kind, why, &[("count", Detail::Int(c))]),
+                        None => self.log.event(t, kind, why, &[]),
+                    }
+                }
+            }
+            self.supervise();
+        }
+        let now = self.ms_clock.now_ms(DWT::cycle_count());
+        // The SD card: flushed when due; a failure shows and is reported.
+        let (sd_changed, errors) = self.log.tick(self.last_t, now);
+        if let Some(state) = sd_changed {
+            defmt::error!("SD card: {}", state);
+        }
+        if let Some(e) = errors {
+            defmt::warn!("session log errors: {}", e);
+        }
+        let mark = match self.log.sd_state() {
+            SdState::Logging(_) => 0,
+            SdState::NoCard => 1,
+            SdState::Failed(_) => 2,
+        };
+        // The card failed: the stream takes over (its `log_error` event included).
+        if mark != 0
+            && let Some(uart) = self.spare_uart.take()
+        {
+            self.spare_uart = self.log.attach_uart(uart);
+            defmt::warn!("session log: UART stream on");
+        }
+        SD_MARK.store(mark, Ordering::Relaxed);
+        self.supervise();
+    }
+
+    /// Feeds the watchdog while the processing task progresses.
+    fn supervise(&mut self) {
+        let now = self.ms_clock.now_ms(DWT::cycle_count());
+        let progress = [
+            DRAINS.load(Ordering::Relaxed),
+            TICKS.load(Ordering::Relaxed),
+        ];
+        for ((p, last), work) in progress.iter().zip(self.progress.iter_mut()).zip(Work::ALL) {
+            if p != last {
+                *last = *p;
+                self.watch.progress(work, now);
+            }
+        }
+        match self.watch.verdict(now) {
+            Verdict::Feed => self.iwdg.feed(),
             Verdict::Stalled { work, for_ms } => {
                 // Stop feeding: the IWDG resets within its period. Record why first.
-                if !starving {
-                    starving = true;
+                if !self.starving {
+                    self.starving = true;
                     store_crash(&CrashRecord::new(
                         CrashKind::Starved,
                         format_args!("{} for {} ms", work.name(), for_ms),
@@ -958,3 +1011,483 @@ fn main() -> ! {
         }
     }
 }
+
+#[rtic::app(device = stm32f4xx_hal::pac, peripherals = true)]
+mod app {
+    use super::*;
+
+    #[shared]
+    struct Shared {
+        sampler: Sampler,
+        view: Option<View>,
+    }
+
+    #[local]
+    struct Local {
+        samples_in: Producer<'static, Sample>,
+        tick: Tick,
+        work: Proc,
+        display: Display,
+        writer: Writer,
+    }
+
+    #[init]
+    fn init(cx: init::Context) -> (Shared, Local) {
+        let dp = cx.device;
+        let mut cp = cx.core;
+        // Why the last reset happened: the reset controller's flags, then cleared.
+        let csr = dp.RCC.csr().read();
+        let watchdog_reset = csr.wdgrstf().bit_is_set();
+        dp.RCC.csr().modify(|_, w| w.rmvf().set_bit());
+        let crash_record = take_crash();
+        let last_reset = LastReset::from_boot(&crash_record, watchdog_reset);
+
+        let mut rcc = dp.RCC.freeze(Config::hse(12.MHz()).sysclk(SYSCLK_HZ.Hz()));
+        // The watchdog first, so that a hang anywhere after this resets the board; it stops
+        // while a debugger halts the core.
+        let mut iwdg = IndependentWatchdog::new(dp.IWDG);
+        iwdg.stop_on_debug(&dp.DBGMCU, true);
+        iwdg.start(IWDG_PERIOD_MS.millis());
+        cp.DCB.enable_trace();
+        cp.DWT.enable_cycle_counter();
+        let mut delay = cp.SYST.delay(&rcc.clocks);
+        let mut syscfg = dp.SYSCFG.constrain(&mut rcc);
+        let mut exti = dp.EXTI;
+        let gpiob = dp.GPIOB.split(&mut rcc);
+        let gpioc = dp.GPIOC.split(&mut rcc);
+        let gpioa = dp.GPIOA.split(&mut rcc);
+        // Battery: the Feather's ½ divider on PA3 (ADC1 channel 3), read once a second. The
+        // HAL calibrates VDDA from the factory VREFINT value, so the reading does not assume
+        // exactly 3.3 V.
+        let vbat_pin = gpioa.pa3.into_analog();
+        let mcu_adc = Adc::new(dp.ADC1, true, AdcConfig::default(), &mut rcc);
+        let vdda_v = mcu_adc.reference_voltage() as f32 / 1000.0;
+
+        match last_reset {
+            LastReset::Clean => {}
+            LastReset::Panic(m) => defmt::error!("last reset: panic: {=str}", m),
+            LastReset::Starved(m) => defmt::error!("last reset: watchdog, stalled: {=str}", m),
+            LastReset::WatchdogHung => defmt::error!("last reset: watchdog, main loop hung"),
+        }
+
+        // Session log first, so everything after it can be recorded: the microSD card (its
+        // bring-up marked in the crash record, see SD_INIT_MARK) and the UART stream.
+        let gpiod = dp.GPIOD.split(&mut rcc);
+        // The switch is read after the SDIO set-up, so the pull-up has settled.
+        let card_detect = gpiob.pb12.into_pull_up_input();
+        let sdio = stm32f4xx_hal::sdio::Sdio::new(
+            dp.SDIO,
+            (
+                gpioc.pc12, gpiod.pd2, gpioc.pc8, gpioc.pc9, gpioc.pc10, gpioc.pc11,
+            ),
+            &mut rcc,
+        );
+        let card_in = card_detect.is_low();
+        let skip_sd = matches!(last_reset, LastReset::Starved(m) if m == SD_INIT_MARK);
+        store_crash(&CrashRecord::new(
+            CrashKind::Starved,
+            format_args!("{SD_INIT_MARK}"),
+        ));
+        iwdg.feed();
+        let sd = sd_card::mount(sdio, card_in, skip_sd, 0);
+        iwdg.feed();
+        // Bring-up over: clear the marker (the last reset's record was read before it).
+        let _marker = take_crash();
+        let Ok(uart) = dp.USART3.tx(gpiob.pb10, 921_600.bps(), &mut rcc) else {
+            fatal("USART3 configuration refused");
+        };
+        // The UART stream only while no card logs (it takes over when the card fails): the
+        // writer cannot send both beside the card's worst busy times (`board::schedule`,
+        // `UART_ONLY`).
+        let card_logging = matches!(sd.state(), SdState::Logging(_));
+        let (stream, spare_uart) = match (UART_LOG, card_logging) {
+            (false, _) => (None, None),
+            (true, false) => (Some(uart), None),
+            (true, true) => (None, Some(uart)),
+        };
+        // SAFETY: the only reference ever taken to LOG, here, once; then the idle loop's.
+        let log = unsafe { &mut *core::ptr::addr_of_mut!(LOG) }.write(BoardLog::new(sd, stream));
+        // The unit's settings from flash sector 11 (defaults, with the reason, when erased or
+        // corrupt).
+        // SAFETY: SETTINGS_LEN bytes of memory-mapped flash inside the reserved sector
+        // (memory.x), always readable; nothing writes flash while this boot reads it.
+        let stored = unsafe {
+            core::slice::from_raw_parts(
+                settings::SETTINGS_ADDR as *const u8,
+                settings::SETTINGS_LEN,
+            )
+        };
+        let (settings, settings_error) = Settings::load(stored);
+        let step_length_m = settings
+            .calibration
+            .step_length_m
+            .or(PROFILE.defaults.step_length_m);
+        let earth = settings.earth_field();
+        log.header(PROFILE.imu.rate_hz, &earth, true);
+        log.reset(0.0, &last_reset);
+        let region = settings::REGIONS
+            .get(usize::from(settings.region))
+            .map_or("?", |r| r.name);
+        log.event(
+            0.0,
+            "settings",
+            Some(if settings_error.is_some() {
+                "defaults"
+            } else {
+                "stored"
+            }),
+            &[
+                // "none": not calibrated (the step detector's default length applies).
+                (
+                    "step_length_m",
+                    step_length_m.map_or(Detail::Text("none"), Detail::Num),
+                ),
+                ("mode", Detail::Text("sog")),
+                ("volume", Detail::Int(i64::from(settings.volume))),
+                ("region", Detail::Text(region)),
+                (
+                    "antenna_cal",
+                    Detail::Flag(settings.calibration.antenna.is_some()),
+                ),
+                ("mag_cal", Detail::Flag(settings.calibration.mag.is_some())),
+            ],
+        );
+        if let Some(e) = settings_error {
+            defmt::warn!("settings: {}; defaults apply", e);
+        }
+        // The logged and processed magnetometer reading is the calibrated one (the spec's
+        // body-frame field), so a replay needs no calibration of its own.
+        let mag_cal = settings.calibration.mag;
+        match log.sd_state() {
+            SdState::Logging(n) => defmt::info!("SD card: logging to session {=u16}", n),
+            SdState::NoCard => defmt::warn!("SD card: none inserted, log on UART only"),
+            SdState::Failed(e) => defmt::error!("SD card: {}", e),
+        }
+
+        // Antenna ADC on SPI2, mode 1.
+        let mode = spi::Mode {
+            polarity: spi::Polarity::IdleLow,
+            phase: spi::Phase::CaptureOnSecondTransition,
+        };
+        let spi_bus = dp.SPI2.spi(
+            (Some(gpiob.pb13), Some(gpiob.pb14), Some(gpiob.pb15)),
+            mode,
+            8.MHz(),
+            &mut rcc,
+        );
+        let Ok(adc_spi) = ExclusiveDevice::new_no_delay(spi_bus, gpiob.pb9.into_push_pull_output());
+        let mut adc = Ads131m04::new(adc_spi, DrdyAsserted);
+        let adc_ok = adc.reset(&mut delay).is_ok()
+            && adc.check_id().is_ok()
+            && adc.configure(&PROFILE.adc.config).is_ok();
+        if !adc_ok {
+            defmt::error!("antenna ADC not answering: no pulses will be received");
+        }
+        iwdg.feed();
+
+        let mut imu_tick = dp.TIM2.counter_hz(&mut rcc);
+        if imu_tick.start((IMU_HZ as u32).Hz()).is_err() {
+            defmt::error!("IMU timer refused 100 Hz");
+        }
+
+        // Buzzer: a passive piezo on D9 (PB8), TIM4 channel 3 PWM at the tone's frequency and
+        // 50 % duty; duty 0 is silence.
+        let (buzz_timer, (_, _, buzz_ch, _)) = dp.TIM4.pwm_hz(2.kHz(), &mut rcc);
+        let mut buzzer = buzz_ch.with(gpiob.pb8);
+        buzzer.set_duty(0);
+        buzzer.enable();
+
+        // IMU and display share I2C1. A reset may have cut a transfer with a slave still
+        // holding SDA: clear the bus on the bare pins before the peripheral takes them.
+        let mut scl = gpiob.pb6.into_open_drain_output();
+        let mut sda = gpiob.pb7.into_open_drain_output();
+        match clear_pins(&mut scl, &mut sda) {
+            Ok(Cleared { pulses: 0 }) => {}
+            Ok(Cleared { pulses }) => {
+                defmt::warn!("I2C bus held at boot: freed by {=u8} pulses", pulses)
+            }
+            Err(_) => defmt::error!("I2C bus stuck at boot and not freed"),
+        }
+        let i2c = I2c::new(dp.I2C1, (scl, sda), I2C_HZ.Hz(), &mut rcc);
+        // The bus owns the clock controller from here (it rebuilds I2C1 after a clear).
+        // SAFETY: the only write of BUS, before BUS_READY lets anything use it; no task runs
+        // during init.
+        unsafe {
+            (*BUS.0.get()).write(Guarded::new(BoardI2c {
+                i2c: Some(i2c),
+                rcc,
+            }))
+        };
+        BUS_READY.store(true, Ordering::Release);
+        let imu = imu_up(&mut delay);
+        let mut sensors = SensorHealth::new();
+        sensors.adc_boot(adc_ok);
+        sensors.imu_up(imu.is_some());
+        // The red LED tells of a fault even when the display is what failed.
+        let mut fault_led = gpioc.pc1.into_push_pull_output();
+        let mut screen: Screen = Ssd1306::new(
+            I2CDisplayInterface::new(BusHandle),
+            DisplaySize128x64,
+            DisplayRotation::Rotate0,
+        )
+        .into_buffered_graphics_mode();
+        let screen_ok = screen.init().is_ok();
+        SCREEN_OK.store(screen_ok, Ordering::Relaxed);
+        iwdg.feed();
+
+        // The last reset's report, on the display for a while (the watchdog fed meanwhile).
+        if last_reset != LastReset::Clean && screen_ok {
+            screen.clear(BinaryColor::Off).ok();
+            if crash::draw_last_reset(&last_reset, &mut screen).is_ok() && screen.flush().is_ok() {
+                for _ in 0..RESET_REPORT_MS / 100 {
+                    delay.delay_ms(100);
+                    iwdg.feed();
+                }
+            }
+        }
+
+        // The application in SRAM.
+        let cfg = PROFILE.app_config(earth, step_length_m);
+        // SAFETY: the only reference ever taken to RECEIVER, here, once, before any task
+        // runs; then the processing task's alone.
+        let slot = unsafe { &mut *core::ptr::addr_of_mut!(RECEIVER) };
+        let Ok(receiver) = Receiver::emplace(slot, cfg) else {
+            fatal("default configuration refused");
+        };
+        // The nominal calibration of the design until the unit's bench calibration is stored.
+        let fe_cfg =
+            PROFILE.frontend_config(&settings.calibration.antenna_or(&PROFILE.analog.nominal));
+        let rate = fe_cfg.sample_rate_hz;
+        let Ok(new_frontend) = Frontend::new(fe_cfg) else {
+            fatal("front-end configuration refused");
+        };
+        // SAFETY: the only reference ever taken to FRONTEND, here, once; then the
+        // processing task's alone.
+        let frontend = unsafe { &mut *core::ptr::addr_of_mut!(FRONTEND) }.write(new_frontend);
+
+        // The queues: samples (DRDY → processing), IMU records (tick → processing),
+        // session-log records (processing → idle).
+        // SAFETY: the only references ever taken to the three queues, here, once, before
+        // any task runs; each end then belongs to one task.
+        let (samples_in, samples_out) = unsafe { &mut *core::ptr::addr_of_mut!(QUEUE) }
+            .write(Queue::new())
+            .split();
+        let (records_in, records_out) = unsafe { &mut *core::ptr::addr_of_mut!(IMU_Q) }
+            .write(Queue::new())
+            .split();
+        let (log_in, log_out) = unsafe { &mut *core::ptr::addr_of_mut!(LOG_Q) }
+            .write(Queue::new())
+            .split();
+        // The mark button: flags the victim being guided to as found.
+        let mark = MarkButton::new(gpioc.pc6.into_pull_up_input());
+        // The sound button: the same debounced press, on D12.
+        let sound_pin = gpioc.pc2.into_pull_up_input();
+        // Volume steps are not wired to the buzzer yet (50 % duty): 0 mutes.
+        let muted = !SOUND_ON || settings.volume == 0;
+        // The IF range switch starts in the high range, the ADC at the profile's gain: the
+        // DSP's starting setting (`BoardProfile::start_range`).
+        let mut if_range = gpioc.pc3.into_push_pull_output();
+        if_range.set_low();
+        let mut drdy = gpioc.pc7.into_pull_up_input();
+        drdy.make_interrupt_source(&mut syscfg);
+        drdy.trigger_on_edge(&mut exti, Edge::Falling);
+        drdy.enable_interrupt(&mut exti);
+        imu_tick.listen(stm32f4xx_hal::timer::Event::Update);
+
+        defmt::info!(
+            "receiver running (ADC {=bool}, display {=bool})",
+            adc_ok,
+            screen_ok
+        );
+        let Ok(clock) = SampleClock::new(rate, IMU_HZ, 0) else {
+            fatal("sample clock refused its rates");
+        };
+        let fault = sensors.fault();
+        if let Some(f) = fault {
+            defmt::error!("sensor fault at boot: {=str}", f.label());
+        }
+        let sd_fault = log.sd_state().fault_label().is_some();
+        fault_led.set_state((fault.is_some() || !screen_ok || sd_fault).into());
+        let ms_clock = MonotonicMs::new(SYSCLK_HZ / 1000, DWT::cycle_count());
+        let mut idle_ms = MonotonicMs::new(SYSCLK_HZ / 1000, DWT::cycle_count());
+        let now_ms = idle_ms.now_ms(DWT::cycle_count());
+        let shown = receiver.display_model();
+        let bus_stats = with_bus(|b| b.stats()).unwrap_or_default();
+        (
+            Shared {
+                sampler: Sampler { adc, drdy },
+                view: None,
+            },
+            Local {
+                samples_in,
+                tick: Tick {
+                    timer: imu_tick,
+                    imu,
+                    records: records_in,
+                    misses: TickMisses::new(TICK_CYCLES),
+                },
+                work: Proc {
+                    samples: samples_out,
+                    records: records_out,
+                    log: log_in,
+                    frontend,
+                    receiver,
+                    rate,
+                    clock,
+                    taken: 0,
+                    last_imu_t: None,
+                    drawn: None,
+                    shown,
+                    sensors,
+                    fault,
+                    battery: Battery::new(),
+                    mcu_adc,
+                    vbat_pin,
+                    vdda_v,
+                    fault_led,
+                    if_range,
+                    mark,
+                    sound_pin,
+                    sound_low: 0,
+                    press: PressDetector::new(),
+                    menu: Menu::new(settings),
+                    muted,
+                    chirp_until_ms: 0,
+                    playing: None,
+                    buzz_timer,
+                    buzzer,
+                    mag_cal,
+                    ms_clock,
+                    window_ticks: 0,
+                    window_samples: SAMPLES.load(Ordering::Relaxed),
+                    window_errors: FRAME_ERRORS.load(Ordering::Relaxed),
+                    bus_stats,
+                    reported: [0; 4],
+                    log_overruns: 0,
+                },
+                display: Display { screen },
+                writer: Writer {
+                    log,
+                    items: log_out,
+                    iwdg,
+                    ms_clock: idle_ms,
+                    watch: ProgressWatch::new(PROGRESS_LIMIT_MS, now_ms),
+                    starving: false,
+                    progress: [0; 2],
+                    last_t: 0.0,
+                    spare_uart,
+                },
+            },
+        )
+    }
+
+    /// The log writer and the watchdog's feeder, below every task.
+    #[idle(local = [writer])]
+    fn idle(cx: idle::Context) -> ! {
+        loop {
+            cx.local.writer.pass();
+        }
+    }
+
+    /// ADC data ready: one frame into the sample queue.
+    #[task(binds = EXTI9_5, priority = 4, shared = [sampler], local = [samples_in])]
+    fn drdy(mut cx: drdy::Context) {
+        let sample = cx.shared.sampler.lock(|s| {
+            s.drdy.clear_interrupt_pending_bit();
+            SAMPLES.fetch_add(1, Ordering::Relaxed);
+            match s.adc.read_frame() {
+                Ok(frame) => {
+                    let v = s.adc.to_volts(&frame);
+                    Sample {
+                        volts: [v[0], v[1], v[2]],
+                        clipped: frame.coils_saturated(),
+                    }
+                }
+                // A corrupted frame keeps the time base: the DSP sees a clipped zero sample.
+                Err(_) => {
+                    FRAME_ERRORS.fetch_add(1, Ordering::Relaxed);
+                    Sample {
+                        volts: [0.0; 3],
+                        clipped: true,
+                    }
+                }
+            }
+        });
+        if cx.local.samples_in.enqueue(sample).is_ok() {
+            QUEUED.fetch_add(1, Ordering::Relaxed);
+        } else {
+            DROPPED.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+
+    /// The 100 Hz tick: the IMU read into its queue, then the processing task woken.
+    #[task(binds = TIM2, priority = 3, local = [tick])]
+    fn imu_tick(cx: imu_tick::Context) {
+        let tick = cx.local.tick;
+        let _flag = tick.timer.wait();
+        // Releases lost since the last tick (the timer's update came again before this ran).
+        let missed = tick.misses.on_tick(DWT::cycle_count());
+        if missed > 0 {
+            MISSED_TICKS.fetch_add(missed, Ordering::Relaxed);
+        }
+        // A bus clear may have reset the devices or left them half-configured.
+        if with_bus(|b| b.take_reinit()).unwrap_or(false) {
+            tick.imu = imu_up(&mut CycleDelay);
+            SCREEN_REINIT.store(true, Ordering::Relaxed);
+            defmt::warn!(
+                "I2C devices re-initialised (IMU {=bool})",
+                tick.imu.is_some()
+            );
+        }
+        let record = ImuRecord {
+            queued: QUEUED.load(Ordering::Relaxed),
+            reading: tick.imu.as_mut().map(|imu| imu.read().map_err(|_| ())),
+        };
+        if tick.records.enqueue(record).is_err() {
+            IMU_OVERRUNS.fetch_add(1, Ordering::Relaxed);
+        }
+        rtic::pend(pac::Interrupt::USART1);
+    }
+
+    /// DSP, estimator, guidance, health and tones: samples and IMU records in time order.
+    #[task(binds = USART1, priority = 2, shared = [sampler, view], local = [work])]
+    fn process(cx: process::Context) {
+        let w = cx.local.work;
+        let (mut sampler, mut view) = (cx.shared.sampler, cx.shared.view);
+        loop {
+            // An IMU record once the samples queued before it are taken (or none wait).
+            let due = w.records.peek().is_some_and(|r| {
+                w.taken.wrapping_sub(r.queued) < u32::MAX / 2 || !w.samples.ready()
+            });
+            if due {
+                if let Some(r) = w.records.dequeue() {
+                    w.on_tick(r, &mut sampler, &mut view);
+                }
+            } else if let Some(s) = w.samples.dequeue() {
+                w.on_sample(s, &mut sampler, &mut view);
+            } else {
+                break;
+            }
+        }
+        DRAINS.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Draws the newest model and flushes it (each I2C write under the bus lock).
+    #[task(binds = USART2, priority = 1, shared = [view], local = [display])]
+    fn show_view(mut cx: show_view::Context) {
+        let screen = &mut cx.local.display.screen;
+        if SCREEN_REINIT.swap(false, Ordering::Relaxed) {
+            SCREEN_OK.store(screen.init().is_ok(), Ordering::Relaxed);
+        }
+        if let Some(v) = cx.shared.view.lock(Option::take) {
+            let ok = show(screen, &v);
+            if !ok {
+                defmt::warn!("display write failed");
+            }
+            SCREEN_OK.store(ok, Ordering::Relaxed);
+        }
+    }
+}
+
+// The priorities above are the schedule model's (`firmware::board::schedule`).
+const _: () = assert!(PRIO_DRDY == 4 && PRIO_IMU == 3 && PRIO_PROCESS == 2 && PRIO_DISPLAY == 1);

@@ -11,7 +11,7 @@
 //! | `settings` | – | the settings' keys (see the board binary) |
 //! | `withheld` | `overlap`, `saturated`, `truncated` | – |
 //! | `read_error` | `imu` or `adc` | `count` (ADC: failed frames in the last second) |
-//! | `overrun` | `adc_queue` | `count` (samples dropped since the last report) |
+//! | `overrun` | `adc_queue`, `imu_tick`, `imu_queue` or `log_queue` | `count` (samples dropped, IMU ticks missed, IMU records or log records lost since the last report) |
 //! | `mark` | – | – |
 //! | `fault` | the fault's word, or `cleared` | – |
 //! | `log_error` | `sd` or `uart` | `failed`, `refused` (records lost on every writer, records refused), `sd_lost_bytes`, `sd` (the card's word or `logging`) |
@@ -91,6 +91,17 @@ impl<D: BlockDevice, U: Write> BoardLog<D, U> {
     /// Any event (written with `seq`; errors counted).
     pub fn event(&mut self, t: f64, kind: &str, why: Option<&str>, details: &[(&str, Detail<'_>)]) {
         let _counted = self.rec.event(t, kind, why, details);
+    }
+
+    /// Starts the UART stream (e.g. when the card that was logging failed); returns the
+    /// UART back if one streams already.
+    pub fn attach_uart(&mut self, uart: U) -> Option<U> {
+        let b = &mut self.rec.writer().b;
+        if b.is_some() {
+            return Some(uart);
+        }
+        *b = Some(uart);
+        None
     }
 
     /// The SD card's state.
@@ -175,6 +186,18 @@ mod tests {
     extern crate std;
     use std::string::String;
     use std::vec;
+
+    #[test]
+    fn attached_uart_takes_the_records_from_then_on() {
+        let mut log: BoardLog<RamCard<'_>, String> = BoardLog::new(SdSink::new(None), None);
+        log.event(1.0, "mark", None, &[]);
+        assert_eq!(log.attach_uart(String::from("x")), None);
+        log.event(2.0, "mark", None, &[]);
+        assert_eq!(log.attach_uart(String::new()), Some(String::new()));
+        let uart = log.rec.writer_ref().b.as_deref().unwrap_or("");
+        assert!(uart.starts_with("x{\"type\":\"event\",\"t\":2"), "{uart}");
+        assert_eq!(uart.lines().count(), 1);
+    }
 
     #[test]
     fn events_and_errors_reach_the_uart_when_the_card_fails() {

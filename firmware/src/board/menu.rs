@@ -13,6 +13,11 @@
 //! (`crate::calibration`) and stores the result in the settings' calibration record.
 
 use crate::board::settings::{MAX_VOLUME, REGIONS, SearchMode, Settings};
+use embedded_graphics::mono_font::MonoTextStyle;
+use embedded_graphics::mono_font::ascii::{FONT_6X10, FONT_10X20};
+use embedded_graphics::pixelcolor::BinaryColor;
+use embedded_graphics::prelude::*;
+use embedded_graphics::text::{Baseline, Text};
 
 /// Held at least this long (ms), a press is long.
 pub const LONG_PRESS_MS: u64 = 800;
@@ -228,6 +233,29 @@ impl Menu {
     }
 }
 
+/// Draws the open menu over a cleared `target`: the item's name, its value large, and
+/// what the buttons do. Returns false (and draws nothing) when the menu is closed.
+pub fn draw<D: DrawTarget<Color = BinaryColor>>(
+    menu: &Menu,
+    target: &mut D,
+) -> Result<bool, D::Error> {
+    let Some((name, value)) = menu.lines() else {
+        return Ok(false);
+    };
+    let small = MonoTextStyle::new(&FONT_6X10, BinaryColor::On);
+    let large = MonoTextStyle::new(&FONT_10X20, BinaryColor::On);
+    Text::with_baseline(name, Point::new(0, 0), small, Baseline::Top).draw(target)?;
+    Text::with_baseline(value, Point::new(0, 18), large, Baseline::Top).draw(target)?;
+    Text::with_baseline(
+        "D12 next/set  D6 exit",
+        Point::new(0, 54),
+        small,
+        Baseline::Top,
+    )
+    .draw(target)?;
+    Ok(true)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -295,5 +323,49 @@ mod tests {
             assert!(name.len() <= 21 && value.len() <= 21);
             m.sound_button(Press::Short);
         }
+    }
+
+    /// Counts lit pixels on a 128×64 screen.
+    struct Lit(u32, i32);
+
+    impl OriginDimensions for Lit {
+        fn size(&self) -> Size {
+            Size::new(128, 64)
+        }
+    }
+
+    impl DrawTarget for Lit {
+        type Color = BinaryColor;
+        type Error = core::convert::Infallible;
+        fn draw_iter<I: IntoIterator<Item = Pixel<BinaryColor>>>(
+            &mut self,
+            px: I,
+        ) -> Result<(), Self::Error> {
+            for Pixel(p, c) in px {
+                if c.is_on() && (0..128).contains(&p.x) && (0..64).contains(&p.y) {
+                    self.0 += 1;
+                    self.1 = self.1.max(p.x);
+                }
+            }
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn draws_only_when_open() {
+        let mut m = Menu::new(Settings::DEFAULT);
+        let mut closed = Lit(0, 0);
+        assert_eq!(draw(&m, &mut closed), Ok(false));
+        assert_eq!(closed.0, 0);
+        assert_eq!(m.sound_button(Press::Long), MenuEvent::Opened);
+        let mut open = Lit(0, 0);
+        assert_eq!(draw(&m, &mut open), Ok(true));
+        // Name, value and the hint line: hundreds of pixels, the hint across the width.
+        assert!(
+            open.0 > 200 && open.1 > 100,
+            "{} px to x = {}",
+            open.0,
+            open.1
+        );
     }
 }

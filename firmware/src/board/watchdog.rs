@@ -123,9 +123,70 @@ impl MonotonicMs {
     }
 }
 
+/// Counts a periodic interrupt's lost releases from the cycle counter: ticks due since
+/// the first one (rounded, so a late tick followed by an early one is no loss) against
+/// ticks handled. The NVIC keeps one pending bit, so a handler that starts more than a
+/// period late has lost a release.
+#[derive(Debug, Clone)]
+pub struct TickMisses {
+    period_cycles: u32,
+    last: u32,
+    elapsed: u64,
+    handled: u64,
+}
+
+impl TickMisses {
+    /// A counter for a tick every `period_cycles` (≥ 1) cycles.
+    pub fn new(period_cycles: u32) -> Self {
+        Self {
+            period_cycles: period_cycles.max(1),
+            last: 0,
+            elapsed: 0,
+            handled: 0,
+        }
+    }
+
+    /// A tick handled at the counter value `now_cycles` (a wrapping 32-bit counter, read
+    /// at least once per wrap): the ticks lost since the last one.
+    pub fn on_tick(&mut self, now_cycles: u32) -> u32 {
+        if self.handled > 0 {
+            self.elapsed += u64::from(now_cycles.wrapping_sub(self.last));
+        }
+        self.last = now_cycles;
+        let p = u64::from(self.period_cycles);
+        let due = (self.elapsed + p / 2) / p + 1;
+        self.handled += 1;
+        let missed = due.saturating_sub(self.handled);
+        self.handled = self.handled.max(due);
+        u32::try_from(missed).unwrap_or(u32::MAX)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn tick_misses_counts_lost_releases_not_jitter() {
+        const P: u32 = 1_680_000;
+        let mut m = TickMisses::new(P);
+        // Start near the counter's wrap; jitter up to 40 % of a period, late then early.
+        let t0 = u32::MAX - 3 * P;
+        let mut lost = 0;
+        for k in 0..5_000u32 {
+            let jitter = if k % 2 == 0 { P / 5 * 2 } else { 0 };
+            lost += m.on_tick(t0.wrapping_add(k.wrapping_mul(P)).wrapping_add(jitter));
+        }
+        assert_eq!(lost, 0);
+        // Skip one, then three releases: counted once each, then back to none.
+        let mut m = TickMisses::new(P);
+        let ticks = [0u32, 1, 2, 4, 5, 9, 10, 11];
+        let lost: Vec<u32> = ticks
+            .iter()
+            .map(|&k| m.on_tick(t0.wrapping_add(k * P)))
+            .collect();
+        assert_eq!(lost, [0, 0, 0, 1, 0, 3, 0, 0]);
+    }
 
     const LIMITS: [u64; 2] = [1000, 500];
 

@@ -27,7 +27,7 @@ impl BlockView<'_> {
     fn idx(&self, i: usize) -> usize {
         (self.first + i) % self.blocks.len().max(1)
     }
-    fn block(&self, i: usize) -> [C32; 3] {
+    pub(crate) fn block(&self, i: usize) -> [C32; 3] {
         self.blocks
             .get(self.idx(i))
             .copied()
@@ -66,11 +66,8 @@ pub(crate) struct Analysis {
     pub saturated: bool,
 }
 
-/// Pulse edges within the view: the run of blocks maximising `Σ (e_b − τ)` with
-/// `τ = F + P/2` halfway between the floor and the pulse level `P + F` (Kadane's
-/// maximum subarray; for a rectangular pulse this puts each edge where a block is at
-/// least half covered). `P` is first the peak `w`-block mean, then refined once.
-pub(crate) fn edges(view: &BlockView<'_>, floor: f32, w: usize) -> Option<(usize, usize)> {
+/// Largest mean energy of `w` consecutive blocks of the view.
+fn peak_mean(view: &BlockView<'_>, w: usize) -> f32 {
     let n = view.len;
     let w = w.clamp(1, n.max(1));
     let mut sum = 0.0;
@@ -84,7 +81,16 @@ pub(crate) fn edges(view: &BlockView<'_>, floor: f32, w: usize) -> Option<(usize
             peak = peak.max(sum / w as f32);
         }
     }
-    let mut level = peak - floor;
+    peak
+}
+
+/// Pulse edges within the view: the run of blocks maximising `Σ (e_b − τ)` with
+/// `τ = F + P/2` halfway between the floor and the pulse level `P + F` (Kadane's
+/// maximum subarray; for a rectangular pulse this puts each edge where a block is at
+/// least half covered). `P` is first the peak `w`-block mean, then refined once.
+pub(crate) fn edges(view: &BlockView<'_>, floor: f32, w: usize) -> Option<(usize, usize)> {
+    let n = view.len;
+    let mut level = peak_mean(view, w) - floor;
     let mut run = None;
     for _ in 0..2 {
         if level.is_nan() || level <= 0.0 {
@@ -113,7 +119,7 @@ pub(crate) fn edges(view: &BlockView<'_>, floor: f32, w: usize) -> Option<(usize
 }
 
 /// `Σ_b p_b e^{−j2πνb}` over blocks `s .. s+n` of the view, per coil.
-fn dtft(view: &BlockView<'_>, s: usize, n: usize, nu: f32) -> [C32; 3] {
+pub(crate) fn dtft(view: &BlockView<'_>, s: usize, n: usize, nu: f32) -> [C32; 3] {
     let step = C32::cis(-2.0 * PI * nu);
     let mut w = C32::new(1.0, 0.0);
     let mut acc = [C32::ZERO; 3];
@@ -176,7 +182,7 @@ pub(super) fn image_share(nu_image: f32, block_len: f32, main_gain: f32) -> f32 
     ratio * ratio
 }
 
-fn power(c: &[C32; 3]) -> f32 {
+pub(crate) fn power(c: &[C32; 3]) -> f32 {
     c.iter().map(|z| z.norm_sqr()).sum()
 }
 
@@ -188,7 +194,7 @@ const GOLDEN_STEPS: usize = 16;
 /// Carrier offset (cycles per block) of blocks `s .. s+n`: peak of the three coils'
 /// summed periodogram (zero-padded FFT, |offset| ≤ `max_nu`), refined by a parabola
 /// through the peak bin and a golden-section search of the exact periodogram.
-fn carrier(
+pub(crate) fn carrier(
     view: &BlockView<'_>,
     s: usize,
     n: usize,
@@ -261,17 +267,47 @@ fn carrier(
     (0.5 * (lo + hi)).clamp(-max_nu, max_nu)
 }
 
-/// Analyse the pulse in `view` against the noise floor `floor` (energy per block).
-/// `None` when no pulse stands above the floor.
+/// How a pulse was found.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Pulse0 {
+    /// The energy detector fired on it.
+    pub energy: bool,
+    /// View index of the last block of its best coherent window, if the coherent detector
+    /// fired on it.
+    pub anchor: Option<usize>,
+}
+
+/// Per-block signal-to-floor energy ratio below which the energy edges are not used when
+/// a coherent window is known: at 2 the energy of a block stands 2 F above the floor
+/// while noise scatters it by F/√3, so the half-level crossing is clear; below, the
+/// edges come from the coherent projection (a 12–20 σ_bkg pulse lost ⅓ of its detections
+/// to energy edges cut short).
+const ENERGY_EDGES_MIN_SNR: f32 = 2.0;
+
+/// Analyse the pulse in `view` against the noise floor `floor` (energy per block), found
+/// as `how` says: a pulse found only by the coherent detector, or too weak for the
+/// energy edges, takes its edges from the coherent projection around its best window
+/// ([`super::coherent::edges`]). `None` when no pulse stands above the floor.
 pub(crate) fn analyse(
     view: &BlockView<'_>,
     floor: f32,
     cfg: &FrontendConfig,
+    how: Pulse0,
     fft: &mut [C32; MAX_FFT],
     pow: &mut [f32; MAX_FFT],
 ) -> Option<Analysis> {
     let floor = floor.max(f32::MIN_POSITIVE);
-    let (start, e) = edges(view, floor, cfg.detect_blocks)?;
+    let coherent = match how.anchor {
+        Some(a) if !how.energy => Some(a),
+        Some(a) if peak_mean(view, cfg.detect_blocks) < (1.0 + ENERGY_EDGES_MIN_SNR) * floor => {
+            Some(a)
+        }
+        _ => None,
+    };
+    let (start, e) = match coherent {
+        Some(best_end) => super::coherent::edges(view, best_end, cfg, fft, pow)?,
+        None => edges(view, floor, cfg.detect_blocks)?,
+    };
     let (s, n) = (start, e - start);
     let max_nu = cfg.max_offset_hz * cfg.block_s();
     // Carrier and amplitudes from the interior blocks only: an edge block is partly empty

@@ -37,6 +37,17 @@ pub struct FrontendConfig {
     /// A pulse starts when the window's mean energy exceeds this multiple of the noise
     /// floor. Default 1.8 (≈5.5 standard deviations of the noise-only window mean).
     pub k_on: f32,
+    /// Blocks of the coherent detector's window ([`coherent`](super::coherent)); 0 turns it
+    /// off. Default 32 (64 ms): as long as a power of two can be inside the standard's
+    /// shortest pulse (70 ms = 35 blocks), so one window position holds only pulse.
+    pub coherent_blocks: usize,
+    /// Blocks between evaluations of the coherent detector. Default 2 (4 ms): a 70 ms
+    /// pulse spans 34 whole blocks, so a 32-block window lies inside it at ≥ 2 positions
+    /// and one of them is evaluated.
+    pub coherent_hop: usize,
+    /// Required false-alarm rate of the coherent detector (Hz): its threshold is set from
+    /// it (`coherent::threshold`). Default one per 10 minutes.
+    pub false_alarm_rate_hz: f32,
     /// A pulse ends when the window's mean energy falls below this multiple of the floor.
     pub k_off: f32,
     /// Pulses shorter than this (s) are discarded as interference; the standard's
@@ -72,6 +83,9 @@ impl Default for FrontendConfig {
             detect_blocks: 16,
             k_on: 1.8,
             k_off: 1.3,
+            coherent_blocks: 32,
+            coherent_hop: 2,
+            false_alarm_rate_hz: 1.0 / 600.0,
             min_pulse_s: 0.05,
             floor_time_constant_s: 0.5,
             warmup_blocks: 32,
@@ -98,7 +112,9 @@ impl FrontendConfig {
 
     /// Check the configuration: positive finite rates, IF below Nyquist with a whole
     /// number of cycles per block, block length in 4..=[`MAX_BLOCK`], offset search below
-    /// half the block rate, detection window well inside the buffer, thresholds ordered
+    /// half the block rate, detection windows well inside the buffer (the coherent one a
+    /// power of two, 8 blocks or more, hop at most its length, a positive false-alarm
+    /// rate), thresholds ordered
     /// `1 < k_off < k_on`, valid calibration, valid ranging starting on its ladder.
     pub fn validate(&self) -> Result<(), FrontendError> {
         let fs = self.sample_rate_hz;
@@ -114,6 +130,12 @@ impl FrontendConfig {
             && self.max_offset_hz > 0.0
             && self.max_offset_hz < 0.45 / self.block_s()
             && (2..=RING_BLOCKS / 4).contains(&self.detect_blocks)
+            && (self.coherent_blocks == 0
+                || (self.coherent_blocks.is_power_of_two()
+                    && (8..=RING_BLOCKS / 4).contains(&self.coherent_blocks)
+                    && (1..=self.coherent_blocks).contains(&self.coherent_hop)
+                    && self.false_alarm_rate_hz.is_finite()
+                    && self.false_alarm_rate_hz > 0.0))
             && self.k_off > 1.0
             && self.k_on > self.k_off
             && self.k_on.is_finite()

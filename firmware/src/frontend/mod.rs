@@ -59,6 +59,7 @@
 
 mod analysis;
 mod calibration;
+mod coherent;
 mod complex;
 mod config;
 mod dominance;
@@ -82,7 +83,7 @@ pub use tracker::{
     DORMANT_S, ESTABLISHED_HITS, MAX_TRACKS, PERIOD_MAX_S, PERIOD_MIN_S, Track, TransmitterTracker,
 };
 
-use analysis::{BlockView, analyse};
+use analysis::{BlockView, Pulse0, analyse};
 use core::f32::consts::PI;
 
 /// Longest block (samples) a configuration may use.
@@ -133,12 +134,20 @@ fn coil_calibration(c: &Calibration, range: IfRange) -> [C32; 3] {
     })
 }
 
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 enum State {
     /// Tracking the floor, waiting for a pulse.
     Idle,
-    /// In a pulse first detected at this absolute block.
-    InPulse { detected: u64 },
+    /// In a pulse first detected at absolute block `detected` — by the energy detector
+    /// (`energy`), or only by the coherent one so far, whose best window ended at block
+    /// `best` (statistic `z`) and which last fired at block `last_hit`.
+    InPulse {
+        detected: u64,
+        energy: bool,
+        best: u64,
+        z: f32,
+        last_hit: u64,
+    },
 }
 
 /// The pulse front end: feed it coil samples, get [`Pulse`]s.
@@ -170,6 +179,11 @@ pub struct Frontend {
     alpha: f32,
     state: State,
     quiet_from: u64,
+    /// Threshold of the coherent detector (χ²₆, from the false-alarm rate).
+    eta: f32,
+    /// Floor updates since the last (re)seed: the coherent detector waits for the floor
+    /// to settle (one time constant) before it trusts its threshold.
+    updates: u64,
     fft: [C32; MAX_FFT],
     power: [f32; MAX_FFT],
     tracker: TransmitterTracker,
@@ -214,6 +228,8 @@ impl Frontend {
             alpha,
             state: State::Idle,
             quiet_from: 0,
+            eta: coherent::threshold(&cfg),
+            updates: 0,
             fft: [C32::ZERO; MAX_FFT],
             power: [0.0; MAX_FFT],
             tracker: TransmitterTracker::new(),
@@ -292,6 +308,7 @@ impl Frontend {
         self.warm_until =
             self.settle_until + self.cfg.warmup_blocks.max(self.cfg.detect_blocks) as u64;
         self.seeded = 0;
+        self.updates = 0;
         self.floor = 0.0;
         // The partial block holds samples of the old setting: start the next one afresh.
         self.acc = [C32::ZERO; 3];
@@ -424,10 +441,30 @@ impl Frontend {
         }
         let w = self.cfg.detect_blocks as u64;
         let window: f32 = (0..w).map(|k| self.energy_at(b - k)).sum::<f32>() / w as f32;
+        let energy_hit = window > self.cfg.k_on * self.floor;
         match self.state {
             State::Idle => {
-                if window > self.cfg.k_on * self.floor {
-                    self.state = State::InPulse { detected: b };
+                let coherent = if energy_hit {
+                    None
+                } else {
+                    self.coherent_hit(b)
+                };
+                if energy_hit {
+                    self.state = State::InPulse {
+                        detected: b,
+                        energy: true,
+                        best: b,
+                        z: 0.0,
+                        last_hit: b,
+                    };
+                } else if let Some(z) = coherent {
+                    self.state = State::InPulse {
+                        detected: b,
+                        energy: false,
+                        best: b,
+                        z,
+                        last_hit: b,
+                    };
                 } else if b >= self.quiet_from + w {
                     // Update from the block one window back: a pulse now being detected
                     // cannot have leaked into it. Clamp single outliers (EMI clicks).
@@ -435,6 +472,7 @@ impl Frontend {
                         .energy_at(b - w)
                         .min(3.0 * self.floor.max(f32::MIN_POSITIVE));
                     self.floor += self.alpha * (old - self.floor);
+                    self.updates += 1;
                     // The same block's peak is the noise the setting must hold.
                     if self.ranger.is_some() {
                         let t = self.now();
@@ -445,10 +483,45 @@ impl Frontend {
                 }
                 None
             }
-            State::InPulse { detected } => {
-                // The pulse began at most one window before its detection; keep a margin.
+            State::InPulse {
+                mut detected,
+                mut energy,
+                mut best,
+                mut z,
+                mut last_hit,
+            } => {
+                if !energy && energy_hit {
+                    // Stronger after all: from here the energy detector's pulse, exactly
+                    // as if it had found it first.
+                    energy = true;
+                    detected = b;
+                }
+                // The best coherent window is kept either way: a pulse too weak for the
+                // energy edges takes its edges from it (`analysis::analyse`).
+                if let Some(zb) = self.coherent_hit(b) {
+                    last_hit = b;
+                    if zb > z {
+                        z = zb;
+                        best = b;
+                    }
+                }
+                self.state = State::InPulse {
+                    detected,
+                    energy,
+                    best,
+                    z,
+                    last_hit,
+                };
+                // The pulse began at most one window before its detection (the energy
+                // window, or the coherent one, which may have fired near its end); keep
+                // a margin.
+                let back = if energy {
+                    w + 4
+                } else {
+                    2 * self.cfg.coherent_blocks as u64 + 4
+                };
                 let first = detected
-                    .saturating_sub(w + 4)
+                    .saturating_sub(back)
                     .max(self.blocks.saturating_sub(RING_BLOCKS as u64));
                 let len = (b + 1 - first) as usize;
                 if len >= RING_BLOCKS - 1 {
@@ -478,10 +551,19 @@ impl Frontend {
                         measurement: PulseMeasurement::Truncated,
                     });
                 }
-                if window < self.cfg.k_off * self.floor {
+                if energy && window < self.cfg.k_off * self.floor {
                     self.state = State::Idle;
                     self.quiet_from = b + 1;
-                    return self.finish(first, len);
+                    let anchor = (z > 0.0 && best >= first).then(|| (best - first) as usize);
+                    return self.finish(first, len, Pulse0 { energy, anchor });
+                }
+                // A coherent pulse is over once the window has moved a whole length past
+                // the last position that fired: nothing of it can still be coming.
+                if !energy && b >= last_hit + self.cfg.coherent_blocks as u64 {
+                    self.state = State::Idle;
+                    self.quiet_from = b + 1;
+                    let anchor = Some(best.saturating_sub(first) as usize);
+                    return self.finish(first, len, Pulse0 { energy, anchor });
                 }
                 None
             }
@@ -510,8 +592,31 @@ impl Frontend {
         (sample as f64 / fs) as f32
     }
 
-    /// Analyse blocks `first .. first + len` after a pulse ended.
-    fn finish(&mut self, first: u64, len: usize) -> Option<Pulse> {
+    /// The coherent detector at block `b` (an evaluation block, the floor settled, the
+    /// window clear of the last pulse): its statistic when it exceeds the threshold.
+    fn coherent_hit(&mut self, b: u64) -> Option<f32> {
+        let w = self.cfg.coherent_blocks as u64;
+        let settled = self.seeded + self.updates >= libm::ceilf(1.0 / self.alpha) as u64;
+        // The window must hold no block of the last pulse (nor of a switch transient):
+        // its tail would fire again.
+        let clear = b + 1 >= self.quiet_from + w;
+        if w == 0 || !settled || !clear || !(b + 1).is_multiple_of(self.cfg.coherent_hop as u64) {
+            return None;
+        }
+        let (z, _) = coherent::statistic(
+            &self.ring,
+            Self::ring_index(b),
+            &self.cfg,
+            self.floor,
+            &mut self.fft,
+            &mut self.power,
+        );
+        (z > self.eta).then_some(z)
+    }
+
+    /// Analyse blocks `first .. first + len` after a pulse ended (`how`: see
+    /// [`analyse`]).
+    fn finish(&mut self, first: u64, len: usize, how: Pulse0) -> Option<Pulse> {
         let view = BlockView {
             blocks: &self.ring,
             energy: &self.energy,
@@ -519,7 +624,14 @@ impl Frontend {
             first: Self::ring_index(first),
             len,
         };
-        let a = analyse(&view, self.floor, &self.cfg, &mut self.fft, &mut self.power)?;
+        let a = analyse(
+            &view,
+            self.floor,
+            &self.cfg,
+            how,
+            &mut self.fft,
+            &mut self.power,
+        )?;
         let duration_s = a.len as f32 * self.cfg.block_s();
         if duration_s < self.cfg.min_pulse_s {
             self.stats.rejected_short += 1;

@@ -5,6 +5,8 @@ pub mod accuracy;
 pub mod accuracy_bound;
 pub mod baselines;
 pub mod budget_data;
+pub mod detection_report;
+pub mod multi_report;
 pub mod plot;
 pub mod rescue_report;
 pub mod sensing_report;

@@ -214,6 +214,13 @@ impl Session<'_> {
                 continue;
             };
             let field = firmware::Vec3::new(field.x as f32, field.y as f32, field.z as f32);
+            // The reference transmitter is known to be strong (10⁵ σ_bkg): anything far
+            // weaker is not it (a false alarm of the detector, which allows one per 10
+            // minutes, or a stray transmitter) and would corrupt the fit.
+            let amp: f32 = p.amplitude.iter().map(|z| z.norm_sqr()).sum::<f32>().sqrt();
+            if amp < 0.5 * field.norm() {
+                continue;
+            }
             cal.push(&field, &p.amplitude)
                 .map_err(|e| anyhow!("calibrator: {e:?}"))?;
         }

@@ -12,6 +12,8 @@
 //! - [`unit`]: one simulated unit's actual parameters, drawn about the board profile's
 //!   nominal values with its tolerances.
 //! - [`bench`]: the antenna's bench calibration on an emulated unit.
+//! - [`detection`]: false alarms and detection of weak pulses against the matched-filter
+//!   limit (`sensing-report`'s detection section).
 //! - [`run`]: `simulate --bus` — the whole chain into a session log, and the comparison
 //!   of its pulses with the measurement level's.
 //!
@@ -19,6 +21,7 @@
 pub mod ads131m04;
 pub mod antenna;
 pub mod bench;
+pub mod detection;
 pub mod if_signal;
 pub mod imu;
 pub mod near;

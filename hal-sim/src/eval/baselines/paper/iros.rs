@@ -581,7 +581,7 @@ pub fn reading(sog: &[IrosRun], rbpf: &[Vec<IrosRun>]) -> String {
     };
     let _ = writeln!(
         s,
-        "Our two additions each rescue most of those: without roughening {}, without re-initialization {}; with both, {}. Even our RBPF is over-confident at the end (the truth outside its reported 3σ in {} of {} tries, the SOGs filter in {} of {}): 5000 particles over the 7-D sampled state cannot represent a posterior that narrows to centimetres. The SOGs filter's errors are below the paper's: our pulses carry the noise of ICRA eq. 10 with the firmware's calibrated σ_bkg and k_sen, and the paper does not give its noise levels.",
+        "Our two additions each rescue most of those: without roughening {}, without re-initialization {}; with both, {}. Even our RBPF is over-confident at the end (the truth outside its reported 3σ in {} of {} tries, the SOGs filter in {} of {}): 5000 particles over the 7-D sampled state cannot represent a posterior that narrows to centimetres. The SOGs filter's errors are below the paper's: our pulses carry the noise of ICRA eq. 10 with the firmware's calibrated σ_bkg and k_sen, and the paper does not give its noise levels (the pulse-noise sweep below scales them).",
         line(no_rough),
         line(no_reinit),
         line(ours),
