@@ -73,6 +73,10 @@ pub const REASSOCIATE_SIGMA_FRACTION: f32 = 0.2;
 /// With the list full, a victim silent at least this long (s) may be evicted for a new
 /// transmitter ([`VictimBank::slot_for`]): several of the longest periods.
 pub const EVICT_SILENT_S: f32 = 10.0;
+/// Front-end sources of marked victims remembered after their slot was given away: as
+/// many as the front end keeps tracks ([`crate::frontend::MAX_TRACKS`]), whose ids
+/// outlive a victim's slot (dormant tracks, re-attachment).
+pub const MARKED_SOURCES: usize = crate::frontend::MAX_TRACKS;
 
 type Mat6 = SMatrix<f32, 6, 6>;
 
@@ -306,6 +310,10 @@ pub struct VictimBank {
     slots: [Victim; MAX_VICTIMS],
     /// Time of the last pulse the front end withheld as an overlap (s).
     withheld_t: f32,
+    /// Sources of victims the rescuer marked, most recent last (see
+    /// [`VictimBank::step`]: a marked victim's transmitter heard again after its slot
+    /// was evicted comes back marked, not as a new victim to search for).
+    marked_srcs: heapless::Deque<u8, MARKED_SOURCES>,
 }
 
 impl VictimBank {
@@ -340,6 +348,7 @@ impl VictimBank {
                 Victim::empty(cfg),
             ],
             withheld_t: f32::NEG_INFINITY,
+            marked_srcs: heapless::Deque::new(),
         }
     }
 
@@ -370,6 +379,7 @@ impl VictimBank {
             v.pulses = 0;
         }
         self.withheld_t = f32::NEG_INFINITY;
+        self.marked_srcs.clear();
     }
 
     /// The slots that hold a victim, with their slot index (the list number − 1).
@@ -464,7 +474,27 @@ impl VictimBank {
         let (i, _) = best?;
         let v = self.slots.get_mut(i)?;
         v.src = src;
+        if v.marked {
+            self.remember_marked(src);
+        }
         Some(i)
+    }
+
+    /// Remembers `src` as a marked victim's source (the oldest is forgotten when full).
+    fn remember_marked(&mut self, src: Option<u8>) {
+        let Some(s) = src else { return };
+        if self.marked_srcs.iter().any(|m| *m == s) {
+            return;
+        }
+        if self.marked_srcs.is_full() {
+            self.marked_srcs.pop_front();
+        }
+        let _ = self.marked_srcs.push_back(s);
+    }
+
+    /// Whether `src` is the source of a victim the rescuer marked.
+    pub fn was_marked(&self, src: Option<u8>) -> bool {
+        src.is_some_and(|s| self.marked_srcs.iter().any(|m| *m == s))
     }
 
     fn lost(&self, v: &Victim, t: f32) -> bool {
@@ -539,8 +569,16 @@ impl VictimBank {
             slot.active = false;
             slot.filter.reset();
             let report = slot.filter.step(&own.d, attitude, pulse)?;
+            // A marked victim's transmitter heard again after its slot was given away
+            // (list full, `slot_for`): the front end kept its id, so it is the victim
+            // already found, listed again as marked (else it is searched for and marked
+            // a second time: a wrong-victim mark of `multi-report`).
+            let marked = src.is_some_and(|s| self.marked_srcs.iter().any(|m| *m == s));
+            let Some(slot) = self.slots.get_mut(i) else {
+                return Err(EstimateError::InvalidConfig);
+            };
             slot.src = src;
-            slot.marked = false;
+            slot.marked = marked;
             slot.pulses = 0;
             slot.active = true;
             return Ok(self.commit(i, pend, back, attitude, pulse.t, report, own));
@@ -578,6 +616,8 @@ impl VictimBank {
         match self.slots.get_mut(i) {
             Some(v) if v.active => {
                 v.marked = true;
+                let src = v.src;
+                self.remember_marked(src);
                 true
             }
             _ => false,
@@ -935,6 +975,21 @@ mod tests {
         }
         t += 1.0;
         assert_eq!(bank.slot_for(Some(9), t), Some(0));
+        // Source 9 takes the slot; later the marked victim's transmitter (source 1, its
+        // id kept by the front end) is heard again and takes a slot back: it is the
+        // victim already found, listed as marked, not one to search for again.
+        assert!(bank.was_marked(Some(1)) && !bank.was_marked(Some(9)));
+        assert_eq!(pulse(&mut bank, 9, t), Some(0));
+        assert!(!bank.get(0).unwrap().marked());
+        t += EVICT_SILENT_S + 1.0;
+        for src in 2..=4 {
+            pulse(&mut bank, src, t + 0.1 * f32::from(src));
+        }
+        let back = pulse(&mut bank, 1, t + 0.5).unwrap();
+        assert_eq!(back, 0);
+        assert_eq!(bank.get(0).unwrap().src(), Some(1));
+        assert!(bank.get(0).unwrap().marked());
+        assert_eq!(bank.nearest_unmarked().map(|n| n.0 != 0), Some(true));
         // An established unmarked victim silent beyond LOST_S stays listed while pulses
         // are being withheld as overlaps, and is dropped once they stop.
         let late = t + LOST_S + 1.0;

@@ -75,6 +75,9 @@ pub struct Track {
     pub alive_t_s: f32,
     /// Time of its first pulse (s).
     pub first_t_s: f32,
+    /// The interval (s) its period was taken from, while that interval fits several
+    /// pulse counts (2.41 s: 2 × 1.205 or 3 × 0.803 s); `None` once a pulse decided.
+    pub ambiguous_span_s: Option<f32>,
 }
 
 impl Track {
@@ -118,27 +121,51 @@ impl TransmitterTracker {
             return None;
         }
         self.tracks.retain(|tr| t_s - tr.alive_t_s <= tr.keep_s());
-        let mut best: Option<(usize, f32, u32)> = None;
+        let mut best: Option<(usize, f32, u32, f32)> = None;
         for (i, tr) in self.tracks.iter().enumerate() {
-            if let Some((cost, k)) = match_cost(tr, t_s, offset_hz)
-                && best.is_none_or(|(_, c, _)| cost < c)
+            if let Some((cost, k, q)) = match_cost(tr, t_s, offset_hz)
+                && best.is_none_or(|(_, c, _, _)| cost < c)
             {
-                best = Some((i, cost, k));
+                best = Some((i, cost, k, q));
             }
         }
-        if let Some((i, _, k)) = best
+        if let Some((i, _, k, q)) = best
             && let Some(tr) = self.tracks.get_mut(i)
         {
-            let period = (t_s - tr.last_t_s) / k as f32;
-            tr.period_s = Some(match tr.period_s {
-                Some(p) => p + ALPHA * (period - p),
-                None => period,
-            });
+            let was_established = tr.established();
+            let dt = t_s - tr.last_t_s;
+            match (tr.period_s, tr.ambiguous_span_s) {
+                // A determined period: smoothed.
+                (Some(p), None) => tr.period_s = Some(p + ALPHA * (dt / k as f32 - p)),
+                // An ambiguous one: the hypothesis that fitted, decided when no other
+                // does (see `span_candidates`).
+                (Some(_), Some(span)) => {
+                    let fits = span_candidates(span)
+                        .filter(|c| fit(*c, dt).is_some())
+                        .count();
+                    if fits <= 1 {
+                        tr.period_s = Some(q + ALPHA * (dt / k as f32 - q));
+                        tr.ambiguous_span_s = None;
+                    }
+                }
+                // The second pulse: the first plausible count, kept ambiguous when
+                // another count also fits. Locking on it would take a harmonic alias of
+                // the transmitter's period (2.41 s = 2 × 1.205 s for a 0.8035 s beacon):
+                // the pulses between the alias's lattice points would then start further
+                // tracks of the same transmitter — one victim listed, and marked, twice.
+                // The standard's range decides between counts (2.646 s is 3 × 0.882 s,
+                // not 2 × 1.323 s); the widened gate of `match_cost` only admits jitter.
+                (None, _) => {
+                    let mut candidates = span_candidates(dt);
+                    tr.period_s = Some(candidates.next().unwrap_or(dt / k as f32));
+                    tr.ambiguous_span_s = candidates.next().is_some().then_some(dt);
+                }
+            }
             tr.carrier_offset_hz += ALPHA * (offset_hz - tr.carrier_offset_hz);
             tr.last_t_s = t_s;
             tr.alive_t_s = t_s;
             tr.hits = tr.hits.saturating_add(1);
-            let (id, just_established) = (tr.id, tr.hits == ESTABLISHED_HITS);
+            let (id, just_established) = (tr.id, !was_established && tr.established());
             if just_established {
                 return Some(self.reattach(i).unwrap_or(id));
             }
@@ -154,6 +181,7 @@ impl TransmitterTracker {
             hits: 1,
             alive_t_s: t_s,
             first_t_s: t_s,
+            ambiguous_span_s: None,
         };
         if self.tracks.is_full() {
             // Replace the track silent for longest, unconfirmed ones first.
@@ -240,6 +268,33 @@ fn predicted_near(tr: &Track, t_s: f32) -> bool {
     }
 }
 
+/// The periods within the standard's range (widened by the period estimate's error,
+/// [`DRIFT_GATE_S`]) of which `span_s` is a whole multiple (up to one more than
+/// [`MAX_MISSED_UNKNOWN`] periods), longest first. More than one: the interval does not
+/// determine the period (2.4 s is 2 × 1.2 s or 3 × 0.8 s).
+fn span_candidates(span_s: f32) -> impl Iterator<Item = f32> {
+    (1..=MAX_MISSED_UNKNOWN + 1)
+        .map(move |k| span_s / k as f32)
+        .filter(|p| (PERIOD_MIN_S - DRIFT_GATE_S..=PERIOD_MAX_S + DRIFT_GATE_S).contains(p))
+}
+
+/// Periods bridged and timing cost of an interval `dt` (s) for a period `p` (s), or
+/// `None` outside the timing gate.
+fn fit(p: f32, dt: f32) -> Option<(f32, u32)> {
+    if p <= 0.0 {
+        return None;
+    }
+    let k = libm::roundf(dt / p);
+    if !(1.0..=(MAX_MISSED + 1) as f32).contains(&k) {
+        return None;
+    }
+    let err = dt - k * p;
+    // Allow the prediction error to grow with the periods bridged: pulse-time jitter
+    // once, the period's error k times.
+    let gate = TIME_GATE_S + DRIFT_GATE_S * (k - 1.0);
+    (err.abs() <= gate).then(|| ((err / gate) * (err / gate), k as u32))
+}
+
 /// Cost of taking `new` (period `p_new`) as the dormant track `old` heard again, or
 /// `None` when period, carrier or (over at most [`MAX_MISSED`] periods) phase differ.
 fn reattach_cost(old: &Track, new: &Track, p_new: f32) -> Option<f32> {
@@ -263,9 +318,10 @@ fn reattach_cost(old: &Track, new: &Track, p_new: f32) -> Option<f32> {
     Some(cost)
 }
 
-/// Cost of attributing a pulse to `tr` and the number of periods since its last pulse,
-/// or `None` when outside the gates.
-fn match_cost(tr: &Track, t_s: f32, offset_hz: f32) -> Option<(f32, u32)> {
+/// Cost of attributing a pulse to `tr`, the number of periods since its last pulse and
+/// the period that fitted (an ambiguous track tries each of its span's candidates), or
+/// `None` when outside the gates.
+fn match_cost(tr: &Track, t_s: f32, offset_hz: f32) -> Option<(f32, u32, f32)> {
     let dt = t_s - tr.last_t_s;
     let df = offset_hz - tr.carrier_offset_hz;
     // The standard's off-time is at least 400 ms: anything closer is someone else.
@@ -273,26 +329,20 @@ fn match_cost(tr: &Track, t_s: f32, offset_hz: f32) -> Option<(f32, u32)> {
         return None;
     }
     let freq_cost = (df / FREQ_GATE_HZ) * (df / FREQ_GATE_HZ);
-    match tr.period_s {
-        Some(p) => {
-            let k = libm::roundf(dt / p);
-            if !(1.0..=(MAX_MISSED + 1) as f32).contains(&k) {
-                return None;
-            }
-            let err = dt - k * p;
-            // Allow the prediction error to grow with the periods bridged: pulse-time
-            // jitter once, the period's error k times.
-            let gate = TIME_GATE_S + DRIFT_GATE_S * (k - 1.0);
-            (err.abs() <= gate).then(|| ((err / gate) * (err / gate) + freq_cost, k as u32))
-        }
-        None => (1..=MAX_MISSED_UNKNOWN + 1)
+    match (tr.period_s, tr.ambiguous_span_s) {
+        (Some(p), None) => fit(p, dt).map(|(c, k)| (c + freq_cost, k, p)),
+        (Some(p), Some(span)) => core::iter::once(p)
+            .chain(span_candidates(span))
+            .filter_map(|q| fit(q, dt).map(|(c, k)| (c + freq_cost, k, q)))
+            .min_by(|a, b| a.0.total_cmp(&b.0)),
+        (None, _) => (1..=MAX_MISSED_UNKNOWN + 1)
             .find(|&k| {
                 let p = dt / k as f32;
                 (PERIOD_MIN_S - TIME_GATE_S..=PERIOD_MAX_S + TIME_GATE_S).contains(&p)
             })
             // An unknown period matches anything plausible, at a fixed price above a
             // good timed match so that established tracks win.
-            .map(|k| (1.0 + freq_cost, k)),
+            .map(|k| (1.0 + freq_cost, k, dt / k as f32)),
     }
 }
 
@@ -432,6 +482,67 @@ mod tests {
                 .count(),
             1
         );
+    }
+
+    #[test]
+    fn an_ambiguous_first_interval_does_not_split_a_transmitter() {
+        // A weak transmitter at the edge of range: its first pulses are heard 3 and 4
+        // periods apart (2.41 s = 2 × 1.205 or 3 × 0.8035; 3.37 s = 3 × 1.124 or
+        // 4 × 0.843), then every pulse. Taking the first plausible count locked a track
+        // on 1.205 s (or 1.124 s) and started other tracks on the pulses in between
+        // (`multi-report` seeds 50 and 7: one victim listed twice, marked twice).
+        for (period, gap) in [
+            (0.8035f32, 3usize),
+            (0.8428, 4),
+            (1.25, 2),
+            (0.72, 3),
+            (0.8819, 3),
+        ] {
+            let mut tr = TransmitterTracker::new();
+            let heard = core::iter::once(0).chain((gap..gap + 40).filter(|k| *k != gap + 1));
+            let ids: Vec<u8> = heard
+                .map(|k| tr.assign(0.3 + period * k as f32, 12.0).unwrap())
+                .collect();
+            assert!(ids.iter().all(|id| *id == ids[0]), "{period}: {ids:?}");
+            let p = tr.tracks()[0].period_s.unwrap();
+            assert!((p - period).abs() < 1e-3, "{period}: {p}");
+        }
+        // Which intervals determine a period, and which do not.
+        let c = |span: f32| span_candidates(span).collect::<Vec<f32>>();
+        assert_eq!(c(2.41).len(), 2);
+        assert_eq!(c(3.371).len(), 2);
+        assert!(c(0.5).is_empty());
+        for (span, p) in [(1.0, 1.0), (1.6, 0.8), (1.3, 1.3), (1.4, 0.7)] {
+            assert_eq!(c(span).len(), 1, "{span}");
+            assert!((c(span)[0] - p).abs() < 1e-6, "{span}");
+        }
+    }
+
+    #[test]
+    fn an_ambiguous_track_keeps_its_pulses_against_a_neighbour() {
+        // B (1.2093 s, +43.5 Hz) heard every other pulse (2.42 s: ambiguous) beside A
+        // (0.8078 s, +53 Hz, within the carrier gate): B's track keeps timed hypotheses,
+        // so A's track does not take B's pulses and neither is split (multi-report seed 4).
+        let (pa, pb) = (0.8078f32, 1.2093f32);
+        let mut pulses: Vec<(f32, f32, usize)> = Vec::new();
+        for k in 0..80 {
+            pulses.push((0.3 + pa * k as f32, 53.0, 0));
+            if k % 2 == 0 {
+                pulses.push((0.75 + pb * k as f32, 43.5, 1));
+            }
+        }
+        pulses.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut tr = TransmitterTracker::new();
+        let mut ids = [None, None];
+        for (t, f, who) in pulses {
+            let id = tr.assign(t, f).unwrap();
+            if ids[who].is_none() {
+                ids[who] = Some(id);
+            }
+            assert_eq!(ids[who], Some(id), "tx {who} at {t}");
+        }
+        assert_ne!(ids[0], ids[1]);
+        assert_eq!(tr.tracks().len(), 2);
     }
 
     #[test]
