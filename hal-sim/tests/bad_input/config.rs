@@ -67,6 +67,14 @@ pub(super) fn cases() -> Vec<Case> {
             ..FAIL
         },
         Case {
+            // Found by the `receiver_json` fuzz target: 0 passed this check and was then
+            // refused by the firmware's filter (σ_bkg must be > 0).
+            name: "receiver.json: sigma_bkg 0 A/m",
+            receiver: Some(r#"{"pulse_noise":{"sigma_bkg_A_per_m":0}}"#),
+            stderr: &["pulse_noise.sigma_bkg_A_per_m = 0 is outside [0.000000000001, 0.00001]"],
+            ..FAIL
+        },
+        Case {
             name: "receiver.json: depth range reversed",
             receiver: Some(r#"{"victim_depth_range_m":[3,1]}"#),
             stderr: &["victim_depth_range_m = [3, 1]: the first must not exceed the second"],
