@@ -146,6 +146,11 @@ pub struct RunResult {
     pub pulses: usize,
     /// Closed loop: pulses until "probe here" (`None`: never reached).
     pub steps_to_probe: Option<usize>,
+    /// Closed loop: pulses until the receiver first stood within the probe radius of the
+    /// mean (the walk, without the stop rule's pulses over the mean). Not in the
+    /// sidecars' run records.
+    #[serde(skip)]
+    pub steps_to_mean: Option<usize>,
     /// Closed loop: the ideal straight path's length in pulse periods.
     pub ideal_steps: Option<usize>,
     /// Times the mixture was re-initialized after divergence.

@@ -34,6 +34,7 @@ impl Tracker {
                 nis_evaluated: 0,
                 pulses: 0,
                 steps_to_probe: None,
+                steps_to_mean: None,
                 ideal_steps: None,
                 reinitializations: 0,
                 host_us_per_step: 0.0,

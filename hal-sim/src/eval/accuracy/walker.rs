@@ -65,8 +65,10 @@ pub(super) fn horizontal_axis(est: &VictimEstimate) -> (V3, f64) {
 
 /// Guidance thresholds of the closed loop.
 pub(super) const GO_TO_MEAN_D2: f64 = 9.0; // 3σ: the receiver is outside the belief's 3σ ellipse
-pub(super) const PROBE_RADIUS_M: f64 = 0.3; // "probe here" when the mean is this close, horizontally
-pub(super) const PROBE_STILL_PULSES: usize = 4; // pulses taken standing still before probing
+/// "Probe here" when the mean is this close, horizontally, m.
+pub const PROBE_RADIUS_M: f64 = 0.3;
+/// Pulses taken standing still over the mean before probing.
+pub const PROBE_STILL_PULSES: usize = 4;
 
 /// One closed-loop rescue (the papers' protocol): start 40–70 m away, 1 m/s, a pulse
 /// per transmitter period, stop at "probe here".
@@ -224,6 +226,7 @@ pub(super) fn closed_loop<E: Estimator + ?Sized, B: std::ops::DerefMut<Target = 
                     // horizontal axis (±0.5 m, the classical fine search's bracketing);
                     // once sure, stand still for the last pulses and probe.
                     let (axis, sigma) = horizontal_axis(&e);
+                    tracker.result.steps_to_mean.get_or_insert(k + 1);
                     probe_hold += 1;
                     if 3.0 * sigma <= PROBE_RADIUS_M {
                         sure_hold += 1;
