@@ -45,14 +45,27 @@ fn bus_pulses_match_measurement_pulses() {
     );
     assert!(c.strong >= 15, "{c:?}");
     // Every pulse well above the DSP's detection threshold is found (one transmitter: no
-    // overlaps), and the DSP reports nothing the world did not send.
+    // overlaps), and the DSP reports nothing the world did not send: every bus pulse lies
+    // inside a transmission. (The coherent detector also hears pulses below the
+    // measurement level's draw, so a bus pulse may have no measurement partner.)
     assert!(c.strong_matched >= c.strong - 1, "{c:?}");
-    assert_eq!(c.bus, c.pairs.len(), "{c:?}");
+    let world = &run.sim.world;
+    let sent = |t: f64| world.transmitters.iter().any(|tx| tx.is_on(t));
+    let unsent: Vec<f64> = run
+        .sim
+        .session
+        .pulses()
+        .map(|b| b.t)
+        .filter(|&t| !sent(t))
+        .collect();
+    assert!(
+        unsent.is_empty(),
+        "bus pulses outside any transmission at {unsent:?}"
+    );
     // Both levels follow σ² = σ_bkg² + (k_sen|H|)² per component; the bus level's EMI is
     // σ_bkg only for the shortest (70 ms) pulses, less for longer ones.
     let nees = c.mean_nees();
     assert!(nees > 0.3 && nees < 1.6, "NEES {nees}");
-    assert!(rel < 0.06, "median relative magnitude difference {rel}");
     // Angles scale with σ/|H|: weak pulses (12 σ_bkg) differ by ~7°, strong ones by the
     // k_sen term (≈3.4° rms between two independent 3 % errors).
     let strong: Vec<f64> = c
@@ -67,8 +80,28 @@ fn bus_pulses_match_measurement_pulses() {
         strong.len()
     );
     assert!(strong.len() >= 5 && strong_mean < 6.0, "{strong:?}");
-    assert!(ang < 8.0 && ang90 < 15.0, "angles {ang} {ang90}");
-    assert!(c.pairs.iter().all(|x| x.dt.abs() < 0.02));
+    // Above the old energy detector's level (12 σ_bkg) the angles and times are as before;
+    // the weaker pulses the coherent detector adds are checked by the NEES above.
+    let above: Vec<&hal_sim::sensors::bus::run::PulsePair> = c
+        .pairs
+        .iter()
+        .filter(|x| x.h_true > hal_sim::sensors::bus::run::STRONG_FACTOR * p.sigma_bkg_a_per_m)
+        .collect();
+    let mut angles: Vec<f64> = above.iter().map(|x| x.angle_deg).collect();
+    angles.sort_by(f64::total_cmp);
+    let (ang, ang90) = (angles[angles.len() / 2], angles[angles.len() * 9 / 10]);
+    assert!(
+        ang < 8.0 && ang90 < 15.0,
+        "angles above 12 σ_bkg {ang} {ang90}"
+    );
+    let mut rels: Vec<f64> = above.iter().map(|x| x.rel_norm.abs()).collect();
+    rels.sort_by(f64::total_cmp);
+    let rel_above = rels[rels.len() / 2];
+    assert!(
+        rel_above < 0.06,
+        "median relative magnitude difference above 12 σ_bkg {rel_above}"
+    );
+    assert!(above.iter().all(|x| x.dt.abs() < 0.02), "{above:?}");
 }
 
 #[test]
