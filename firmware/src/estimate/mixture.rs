@@ -451,8 +451,8 @@ mod tests {
         assert!((s - 1.0).abs() < 1e-6);
     }
 
-    #[test]
-    fn merge_preserves_moments_and_handles_moment_sign() {
+    /// Two components 0.2 m apart with opposite moments (weights 0.3 and 0.7).
+    fn opposite_moments() -> (Component, Component) {
         let a = comp(
             Vec3::new(10.0, 1.0, -2.0),
             Vec3::new(5.0, 1.0, 0.0),
@@ -465,9 +465,21 @@ mod tests {
             1.0,
             libm::logf(0.7),
         );
+        (a, b)
+    }
+
+    /// A mixture of the two components.
+    fn pair(a: Component, b: Component) -> Vec<Component, 4> {
         let mut v: Vec<Component, 4> = Vec::new();
         let _ = v.push(a);
         let _ = v.push(b);
+        v
+    }
+
+    #[test]
+    fn merge_preserves_moments_and_handles_moment_sign() {
+        let (a, b) = opposite_moments();
+        let mut v = pair(a, b);
         let (mean0, cov0, _, _) = position_moments(&v).unwrap();
         assert_eq!(merge(&mut v, 0.3, false), 1);
         assert_eq!(v.len(), 1);
@@ -487,21 +499,8 @@ mod tests {
     fn a_known_sign_never_flips_the_moment() {
         // Opposite moments at one position: the same hypothesis when the pulse sign is
         // ambiguous, opposite predicted fields when it is known (`signed`).
-        let a = comp(
-            Vec3::new(10.0, 1.0, -2.0),
-            Vec3::new(5.0, 1.0, 0.0),
-            1.0,
-            libm::logf(0.3),
-        );
-        let b = comp(
-            Vec3::new(10.2, 1.0, -2.0),
-            Vec3::new(-5.2, -1.0, 0.0),
-            1.0,
-            libm::logf(0.7),
-        );
-        let mut v: Vec<Component, 4> = Vec::new();
-        let _ = v.push(a);
-        let _ = v.push(b);
+        let (a, b) = opposite_moments();
+        let mut v = pair(a, b);
         assert!((moment_mean(&v, 1, false).x + (0.3 * 5.0 + 0.7 * 5.2)).abs() < 1e-4);
         let m = moment_mean(&v, 1, true).x;
         assert!((m - (0.3 * 5.0 - 0.7 * 5.2)).abs() < 1e-4, "{m}");
@@ -511,9 +510,7 @@ mod tests {
         let mut c = b;
         c.x.fixed_rows_mut::<3>(I_M)
             .copy_from(&Vec3::new(5.2, 1.0, 0.0));
-        let mut v: Vec<Component, 4> = Vec::new();
-        let _ = v.push(a);
-        let _ = v.push(c);
+        let mut v = pair(a, c);
         assert_eq!(merge(&mut v, 0.3, true), 1);
         let m = v[0].x[I_M];
         assert!((m - (0.3 * 5.0 + 0.7 * 5.2)).abs() < 1e-4, "{m}");
