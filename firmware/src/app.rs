@@ -769,7 +769,7 @@ impl Receiver {
                 h_g: (!gated).then_some(h_g),
                 walked_m: own.distance_m,
                 yaw: rpy.z,
-                yaw_var: cov[(2, 2)],
+                yaw_var: cov.m33,
                 estimate: self.bank.filter(slot).estimate(),
                 reinitialized,
                 signal_lost,
@@ -892,7 +892,7 @@ impl Receiver {
         // Without a heading (no magnetometer) no position is shown as a place to walk
         // to (see `guidance::heading_supports`).
         let heading = heading_supports(
-            self.motion.attitude().1[(2, 2)],
+            self.motion.attitude().1.m33,
             self.guidance.config().go_to_mean_d2,
         );
         let silent =
