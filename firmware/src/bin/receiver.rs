@@ -58,8 +58,8 @@
 #![no_main]
 // Narrow uses, each with its SAFETY note: the statics of the receiver, the sample queue,
 // the front end, the session log, the I2C bus and the crash record (each taken once, at
-// boot or in the panic handler), the bus lock's BASEPRI writes, and read-only reads of
-// GPIOB's input register.
+// boot or in the panic handler), the bus lock's BASEPRI writes, the receiver rebuilt in
+// place (`rebuild`), and read-only reads of GPIOB's input and IWDG's status registers.
 #![allow(unsafe_code)]
 
 #[path = "receiver/sd_card.rs"]
@@ -75,13 +75,14 @@ use embedded_graphics::prelude::*;
 use embedded_hal::delay::DelayNs;
 use embedded_hal_bus::spi::ExclusiveDevice;
 use firmware::Vec3;
-use firmware::app::{DisplayModel, Receiver};
+use firmware::app::{AppConfig, AppError, DisplayModel, Receiver};
 use firmware::board::board_log::BoardLog;
 use firmware::board::crash::{self, CrashKind, CrashRecord, LastReset};
 use firmware::board::gain::{self, GainEvent};
 use firmware::board::health::{self, Battery, BatteryState, Fault, SensorHealth};
 use firmware::board::i2c_bus::{self, ClearError, Cleared, Guarded, Recoverable};
-use firmware::board::menu::{self, Menu, MenuEvent, PressDetector};
+use firmware::board::menu::{self, Menu, MenuEvent, Press, PressDetector, Procedure};
+use firmware::board::procedure::{self, Outcome, Running};
 use firmware::board::schedule::{
     IMU_QUEUE, LOG_QUEUE, PRIO_DISPLAY, PRIO_DRDY, PRIO_IMU, PRIO_PROCESS,
 };
@@ -222,6 +223,20 @@ pub enum LogItem {
     },
     /// A change of the analog setting (gain ranging) as applied.
     Gain(GainEvent),
+    /// A new segment: the receiver was rebuilt (mode, region or step length changed in
+    /// the menu) with this earth field, µT.
+    Header(Vec3),
+    /// A menu procedure started or ended.
+    Calibration {
+        /// Board time, s.
+        t: f64,
+        /// `step_walk` or `mag_cal`.
+        what: &'static str,
+        /// `start`, `cancelled`, or the outcome's word.
+        result: &'static str,
+        /// The step length (m) or the fit's residual (µT RMS), when done.
+        value: Option<f32>,
+    },
     /// An event with an optional count.
     Event {
         /// Board time, s.
@@ -273,6 +288,7 @@ static mut IMU_Q: MaybeUninit<Queue<ImuRecord, { IMU_QUEUE as usize }>> = MaybeU
 static mut LOG_Q: MaybeUninit<Queue<LogItem, { LOG_QUEUE as usize }>> = MaybeUninit::uninit();
 /// Settings to store (processing task → idle loop): the menu closes at most every ≈ 2 s
 /// (two long presses), the idle loop stores within its pass (≤ 0.3 s), so 3 places.
+#[unsafe(link_section = ".ccmram")]
 static mut SAVE_Q: MaybeUninit<Queue<Settings, 4>> = MaybeUninit::uninit();
 /// The crash record: in `.uninit` SRAM, so a system reset keeps it (the runtime neither
 /// zeroes nor initialises it); read and cleared once at boot, written by the panic
@@ -537,6 +553,10 @@ pub struct View {
     battery: Option<BatteryState>,
     /// The menu, when open (drawn instead of the search screen).
     menu: Option<Menu>,
+    /// A procedure running (with its progress), or how the last one ended: drawn
+    /// instead of the menu.
+    procedure: Option<(Procedure, u32)>,
+    outcome: Option<Outcome>,
 }
 
 /// The SD card's word for the display (published by the idle loop).
@@ -552,6 +572,12 @@ fn sd_label() -> Option<&'static str> {
 /// status word, the battery gauge, the SD mark); false if the display did not take it.
 fn show(screen: &mut Screen, view: &View) -> bool {
     screen.clear(BinaryColor::Off).ok();
+    if let Some(o) = &view.outcome {
+        return procedure::draw_outcome(o, screen).is_ok() && screen.flush().is_ok();
+    }
+    if let Some((p, progress)) = view.procedure {
+        return procedure::draw(p, progress, screen).is_ok() && screen.flush().is_ok();
+    }
     if let Some(m) = &view.menu {
         return menu::draw(m, screen).is_ok() && screen.flush().is_ok();
     }
@@ -598,7 +624,14 @@ pub struct Proc {
     menu: Menu,
     muted: bool,
     chirp_until_ms: u64,
-    playing: Option<u32>,
+    /// The tone playing and its duty.
+    playing: Option<(u32, u16)>,
+    /// A menu procedure running, or the outcome shown until the next press.
+    procedure: Option<Running>,
+    outcome: Option<Outcome>,
+    /// The settings the receiver was built with (a change of mode, region or step length
+    /// in the menu rebuilds it).
+    applied: Settings,
     buzz_timer: PwmHzManager<pac::TIM4>,
     buzzer: PwmChannel<pac::TIM4, 2>,
     mag_cal: Option<MagCalibration>,
@@ -665,6 +698,13 @@ impl Proc {
             fault: self.fault,
             battery: self.battery.state(),
             menu: self.menu.item().map(|_| self.menu),
+            procedure: self.procedure.as_ref().map(|r| {
+                (
+                    r.procedure(),
+                    r.progress(self.receiver.motion().total_steps()),
+                )
+            }),
+            outcome: self.outcome,
         };
         view.lock(|slot| *slot = Some(v));
         rtic::pend(pac::Interrupt::USART2);
@@ -740,7 +780,14 @@ impl Proc {
         // The mark button, polled at the tick (debounced over 3 ticks); in the menu it
         // leaves the menu.
         let marked = self.mark.poll();
-        if marked && self.menu.item().is_some() {
+        if marked && self.outcome.is_some() {
+            // The outcome was read: back to the menu.
+            self.outcome = None;
+            redraw = true;
+        } else if marked && self.procedure.is_some() {
+            self.finish_procedure();
+            redraw = true;
+        } else if marked && self.menu.item().is_some() {
             if let Some(MenuEvent::Closed { changed }) = self.menu.mark_button() {
                 self.close_menu(changed);
             }
@@ -805,6 +852,10 @@ impl Proc {
             self.last_imu_t = Some(t);
             match reading {
                 Ok(r) => {
+                    // The calibration fits the raw readings.
+                    if let Some(p) = self.procedure.as_mut() {
+                        p.on_mag(&r.mag);
+                    }
                     let mag = self.mag_cal.map_or(r.mag, |c| c.apply(&r.mag));
                     self.log(LogItem::Imu {
                         t: t.secs_f64(),
@@ -866,6 +917,20 @@ impl Proc {
         let Some(press) = self.press.update(self.sound_low >= 3, now_ms) else {
             return false;
         };
+        // An outcome on screen: any press takes it away. A procedure running: a short
+        // press cancels it.
+        if self.outcome.take().is_some() {
+            return true;
+        }
+        if let Some(p) = self.procedure.as_ref() {
+            if press == Press::Short {
+                let what = procedure_word(p.procedure());
+                self.procedure = None;
+                self.calibration_event(what, "cancelled", None);
+                defmt::info!("{=str} cancelled", what);
+            }
+            return true;
+        }
         match self.menu.sound_button(press) {
             MenuEvent::ToggleMute => {
                 self.muted = !self.muted;
@@ -875,9 +940,18 @@ impl Proc {
                 defmt::info!("sound {=str}", if self.muted { "off" } else { "on" });
                 false
             }
-            MenuEvent::Start(_) => {
-                // The step walk and the magnetometer calibration are not wired yet.
-                defmt::warn!("menu: procedure not available on this build");
+            MenuEvent::Start(p) => {
+                let field = self.menu.settings().earth_field().norm();
+                let steps = self.receiver.motion().total_steps();
+                match Running::start(p, steps, field) {
+                    Ok(r) => {
+                        self.procedure = Some(r);
+                        self.calibration_event(procedure_word(p), "start", None);
+                        defmt::info!("{=str} started", procedure_word(p));
+                    }
+                    // Only a region's field that is not positive: none is.
+                    Err(e) => defmt::error!("procedure refused: {}", e),
+                }
                 true
             }
             MenuEvent::Closed { changed } => {
@@ -888,12 +962,74 @@ impl Proc {
         }
     }
 
-    /// The menu closed: its settings apply from now on (volume 0 mutes), are logged and
-    /// go to the idle loop to be stored in flash (it stalls every task while it writes).
+    /// The mark button ends the running procedure: its outcome is shown, and a result
+    /// goes into the menu's settings (stored when the menu closes).
+    fn finish_procedure(&mut self) {
+        let Some(p) = self.procedure.take() else {
+            return;
+        };
+        let what = procedure_word(p.procedure());
+        let out = p.finish(self.receiver.motion().total_steps());
+        let mut s = *self.menu.settings();
+        if procedure::apply(&out, &mut s) {
+            self.menu.set_settings(s);
+        }
+        let value = match out {
+            Outcome::StepLength { length_m, .. } => Some(length_m),
+            Outcome::Mag(fit) => Some(fit.residual_rms_ut),
+            Outcome::WalkFailed(_) | Outcome::MagFailed(_) => None,
+        };
+        defmt::info!("{=str}: {=str}", what, out.word());
+        self.calibration_event(what, out.word(), value);
+        self.outcome = Some(out);
+    }
+
+    /// A `calibration` event: which procedure, what happened, its value.
+    fn calibration_event(&mut self, what: &'static str, result: &'static str, value: Option<f32>) {
+        let t = log_t(&self.clock);
+        self.log(LogItem::Calibration {
+            t,
+            what,
+            result,
+            value,
+        });
+    }
+
+    /// The receiver rebuilt in place for `s` (a new search): mode, earth field, step
+    /// length; the log starts a new segment with the new earth field.
+    fn rebuild_receiver(&mut self, s: &Settings) {
+        let step = s
+            .calibration
+            .step_length_m
+            .or(PROFILE.defaults.step_length_m);
+        let mut cfg = PROFILE.app_config(s.earth_field(), step);
+        cfg.mode = s.mode.app();
+        match rebuild(self.receiver, cfg) {
+            Ok(()) => {
+                self.applied = *s;
+                self.last_imu_t = None;
+                self.shown = self.receiver.display_model();
+                self.log(LogItem::Header(s.earth_field()));
+                defmt::info!("receiver rebuilt: mode {=str}", s.mode.word());
+            }
+            Err(e) => defmt::error!("new settings refused by the receiver: {}", e),
+        }
+    }
+
+    /// The menu closed: its settings apply from now on (volume 0 mutes; a new mode,
+    /// region or step length rebuilds the receiver: a new search), are logged and go to
+    /// the idle loop to be stored in flash (it stalls every task while it writes).
     fn close_menu(&mut self, changed: bool) {
         if changed {
             let s = *self.menu.settings();
             self.muted = s.volume == 0;
+            self.mag_cal = s.calibration.mag;
+            let a = &self.applied;
+            if (s.mode, s.region, s.calibration.step_length_m)
+                != (a.mode, a.region, a.calibration.step_length_m)
+            {
+                self.rebuild_receiver(&s);
+            }
             let why = if self.saves.enqueue(s).is_ok() {
                 defmt::info!("settings changed (volume {=u8}); saving", s.volume);
                 "menu"
@@ -921,15 +1057,19 @@ impl Proc {
                 now_ms,
             )
         };
-        if tone != self.playing {
-            match tone {
-                Some(hz) => {
+        // The menu's volume (its copy: a change is heard while choosing it); the sound
+        // button's "on" plays at least the lowest step.
+        let volume = self.menu.settings().volume.max(1);
+        let play = tone.map(|hz| (hz, sound::duty(self.buzzer.get_max_duty(), volume)));
+        if play != self.playing {
+            match play {
+                Some((hz, duty)) => {
                     self.buzz_timer.set_period(hz.Hz());
-                    self.buzzer.set_duty(self.buzzer.get_max_duty() / 2);
+                    self.buzzer.set_duty(duty);
                 }
                 None => self.buzzer.set_duty(0),
             }
-            self.playing = tone;
+            self.playing = play;
         }
     }
 
@@ -977,6 +1117,31 @@ impl Writer {
                 LogItem::Gain(e) => {
                     self.last_t = Instant::from_micros(e.t_us).secs_f64();
                     self.log.gain(&e);
+                }
+                LogItem::Header(earth) => {
+                    self.log.header(PROFILE.imu.rate_hz, &earth, true);
+                }
+                LogItem::Calibration {
+                    t,
+                    what,
+                    result,
+                    value,
+                } => {
+                    self.last_t = t;
+                    match value {
+                        Some(v) => self.log.event(
+                            t,
+                            "calibration",
+                            Some(what),
+                            &[("result", Detail::Text(result)), ("value", Detail::Num(v))],
+                        ),
+                        None => self.log.event(
+                            t,
+                            "calibration",
+                            Some(what),
+                            &[("result", Detail::Text(result))],
+                        ),
+                    }
                 }
                 LogItem::Event {
                     t,
@@ -1106,6 +1271,26 @@ impl Writer {
             }
         }
     }
+}
+
+/// The log's word for a menu procedure.
+fn procedure_word(p: Procedure) -> &'static str {
+    match p {
+        Procedure::StepWalk => "step_walk",
+        Procedure::MagCalibration => "mag_cal",
+    }
+}
+
+/// Builds a new receiver for `cfg` in the place of `receiver` (≈ 88 KB: never on the
+/// stack); the old one is left as it was when `cfg` is refused.
+fn rebuild(receiver: &mut Receiver, cfg: AppConfig) -> Result<(), AppError> {
+    // SAFETY: `MaybeUninit<Receiver>` has `Receiver`'s layout, the pointer comes from a
+    // unique reference and is used only for this call, and `emplace` leaves a valid
+    // receiver behind (it checks `cfg` before it writes). The old receiver is forgotten,
+    // not dropped (as `ptr::write` does): it owns no heap and no device, only inline
+    // `heapless` buffers of plain data, so nothing leaks.
+    let slot = unsafe { &mut *core::ptr::from_mut(receiver).cast::<MaybeUninit<Receiver>>() };
+    Receiver::emplace(slot, cfg).map(|_| ())
 }
 
 /// Sets the independent watchdog's period and feeds it. The IWDG takes a new reload value
@@ -1250,7 +1435,7 @@ mod app {
                     "step_length_m",
                     step_length_m.map_or(Detail::Text("none"), Detail::Num),
                 ),
-                ("mode", Detail::Text("sog")),
+                ("mode", Detail::Text(settings.mode.word())),
                 ("volume", Detail::Int(i64::from(settings.volume))),
                 ("region", Detail::Text(region)),
                 (
@@ -1368,7 +1553,8 @@ mod app {
         }
 
         // The application in SRAM.
-        let cfg = PROFILE.app_config(earth, step_length_m);
+        let mut cfg = PROFILE.app_config(earth, step_length_m);
+        cfg.mode = settings.mode.app();
         // SAFETY: the only reference ever taken to RECEIVER, here, once, before any task
         // runs; then the processing task's alone.
         let slot = unsafe { &mut *core::ptr::addr_of_mut!(RECEIVER) };
@@ -1407,7 +1593,7 @@ mod app {
         let mark = MarkButton::new(gpioc.pc6.into_pull_up_input());
         // The sound button: the same debounced press, on D12.
         let sound_pin = gpioc.pc2.into_pull_up_input();
-        // Volume steps are not wired to the buzzer yet (50 % duty): 0 mutes.
+        // Volume 0 mutes; the other steps set the buzzer's duty (`sound::duty`).
         let muted = !SOUND_ON || settings.volume == 0;
         // The IF range switch starts in the high range, the ADC at the profile's gain: the
         // DSP's starting setting (`BoardProfile::start_range`).
@@ -1479,6 +1665,9 @@ mod app {
                     muted,
                     chirp_until_ms: 0,
                     playing: None,
+                    procedure: None,
+                    outcome: None,
+                    applied: settings,
                     buzz_timer,
                     buzzer,
                     mag_cal,

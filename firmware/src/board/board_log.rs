@@ -14,6 +14,7 @@
 //! | `read_error` | `imu` or `adc` | `count` (ADC: failed frames in the last second) |
 //! | `overrun` | `adc_queue`, `imu_tick`, `imu_queue`, `log_queue` or `flash` | `count` (samples dropped, IMU ticks missed, IMU records or log records lost since the last report; `flash`: ADC samples lost while a settings save stalled the flash) |
 //! | `mark` | – | – |
+//! | `calibration` | `step_walk` or `mag_cal` (a menu procedure) | `result` (`start`, `cancelled`, `done` or the failure's word), `value` (step length m, or the fit's residual µT RMS) |
 //! | `fault` | the fault's word, or `cleared` | – |
 //! | `log_error` | `sd` or `uart` | `failed`, `refused` (records lost on every writer, records refused), `sd_lost_bytes`, `sd` (the card's word or `logging`) |
 

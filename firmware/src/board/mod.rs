@@ -5,7 +5,8 @@
 //! recoverable I2C bus ([`i2c_bus`]), the sensor-fault and battery display
 //! ([`health`]), gain ranging applied and logged ([`gain`]), the guidance tones ([`sound`]) and the session log on the microSD card
 //! ([`sd_log`]) with the device events a replay needs ([`board_log`]), the settings stored in flash
-//! ([`settings`], kept safe against power cuts by [`settings_store`]) and the two-button menu that edits them ([`menu`]).
+//! ([`settings`], kept safe against power cuts by [`settings_store`]) and the two-button menu that edits them ([`menu`])
+//! with its calibration procedures ([`procedure`]).
 
 pub mod board_log;
 pub mod crash;
@@ -14,6 +15,7 @@ pub mod health;
 pub mod i2c_bus;
 pub mod menu;
 pub mod pins;
+pub mod procedure;
 pub mod profile;
 pub mod schedule;
 pub mod sd_log;
