@@ -266,6 +266,14 @@ impl SampleClock {
         Instant::from_micros(libm::round(self.samples * 1e6 / self.rate_hz) as u64)
     }
 
+    /// `n` samples the ADC took that were never read (no interrupt could run: a flash
+    /// erase stalls instruction fetch): time moves on by them, and like a stall's
+    /// stand-ins they shift the DSP's later pulse times.
+    pub fn skip(&mut self, n: u32) {
+        self.samples += f64::from(n);
+        self.stand_in += f64::from(n);
+    }
+
     /// Time the DSP did not see (stalls so far) in whole µs: add it to a DSP pulse's
     /// time stamp.
     pub fn offset_us(&self) -> u64 {
@@ -288,6 +296,18 @@ mod tests {
 
     fn clock() -> SampleClock {
         SampleClock::new(8000.0, 100.0, 0).unwrap()
+    }
+
+    #[test]
+    fn skipped_samples_move_time_and_the_pulse_offset_on() {
+        let mut c = clock();
+        assert_eq!(c.tick(800), ClockEvent::Running);
+        // A 2 s flash erase: 16 000 samples never read, then the count goes on.
+        c.skip(16_000);
+        assert_eq!(c.now(), Instant::from_micros(2_100_000));
+        assert_eq!(c.offset_us(), 2_000_000);
+        assert_eq!(c.tick(880), ClockEvent::Running);
+        assert_eq!(c.now(), Instant::from_micros(2_110_000));
     }
 
     #[test]

@@ -58,8 +58,8 @@
 #![no_main]
 // Narrow uses, each with its SAFETY note: the statics of the receiver, the sample queue,
 // the front end, the session log, the I2C bus and the crash record (each taken once, at
-// boot or in the panic handler), the bus lock's BASEPRI writes, and read-only reads of
-// GPIOB's input register.
+// boot or in the panic handler), the bus lock's BASEPRI writes, the receiver rebuilt in
+// place (`rebuild`), and read-only reads of GPIOB's input and IWDG's status registers.
 #![allow(unsafe_code)]
 
 #[path = "receiver/sd_card.rs"]
@@ -75,17 +75,20 @@ use embedded_graphics::prelude::*;
 use embedded_hal::delay::DelayNs;
 use embedded_hal_bus::spi::ExclusiveDevice;
 use firmware::Vec3;
-use firmware::app::{DisplayModel, Receiver};
+use firmware::app::{AppConfig, AppError, DisplayModel, Receiver};
 use firmware::board::board_log::BoardLog;
 use firmware::board::crash::{self, CrashKind, CrashRecord, LastReset};
+use firmware::board::gain::{self, GainEvent};
 use firmware::board::health::{self, Battery, BatteryState, Fault, SensorHealth};
 use firmware::board::i2c_bus::{self, ClearError, Cleared, Guarded, Recoverable};
-use firmware::board::menu::{self, Menu, MenuEvent, PressDetector};
+use firmware::board::menu::{self, Menu, MenuEvent, Press, PressDetector, Procedure};
+use firmware::board::procedure::{self, Outcome, Running};
 use firmware::board::schedule::{
     IMU_QUEUE, LOG_QUEUE, PRIO_DISPLAY, PRIO_DRDY, PRIO_IMU, PRIO_PROCESS,
 };
 use firmware::board::sd_log::SdState;
 use firmware::board::settings::{self, Settings};
+use firmware::board::settings_store::{self, BOARD_AREA};
 use firmware::board::sound::{self, SoundInput};
 use firmware::board::watchdog::{MonotonicMs, ProgressWatch, TickMisses, Verdict, Work};
 use firmware::board::{self, BoardProfile, pins};
@@ -102,6 +105,7 @@ use rtic::Mutex;
 use ssd1306::{I2CDisplayInterface, Ssd1306, prelude::*};
 use stm32f4xx_hal::adc::Adc;
 use stm32f4xx_hal::adc::config::{AdcConfig, SampleTime};
+use stm32f4xx_hal::flash::{FlashExt, LockedFlash};
 use stm32f4xx_hal::gpio::{
     Edge, ExtiPin, Input, OpenDrain, Output, PA3, PB6, PB7, PC1, PC2, PC3, PC6, PC7,
 };
@@ -123,6 +127,11 @@ const SYSCLK_HZ: u32 = 168_000_000;
 /// The independent watchdog's period, ms: the idle loop feeds it; the longest it waits
 /// is a card's busy time (250 ms) behind the tasks above it.
 const IWDG_PERIOD_MS: u32 = 1000;
+/// The watchdog's period while the settings are written to flash, ms: a sector erase
+/// stalls instruction fetch up to 4 s (STM32F405 datasheet, 128 KB sector at ×8
+/// parallelism, which the HAL's erase uses), and the LSI that clocks the IWDG may run
+/// 47/32 fast (8 s nominal ≥ 5.4 s).
+const SAVE_IWDG_MS: u32 = 8000;
 /// Progress limits, ms, by [`Work`]: the sample queue drained within 1 s (it holds
 /// 256 ms; a burst of pulses keeps it busy ≈ 0.3 s), IMU records handled within 0.5 s.
 const PROGRESS_LIMIT_MS: [u64; 2] = [1000, 500];
@@ -136,8 +145,8 @@ const UART_LOG: bool = true;
 /// Crash-record text marking the SD card's bring-up: a watchdog reset there (a card that
 /// never leaves power-up) is reported with it, and the next boot leaves the card alone.
 const SD_INIT_MARK: &str = "SD card bring-up";
-/// Guidance tones on at boot (the sound button toggles them; not stored until settings
-/// live in flash).
+/// Guidance tones on at boot unless the stored volume is 0 (the sound button toggles
+/// them for the session; the menu's SOUND item is what is stored).
 const SOUND_ON: bool = true;
 /// IMU sampling (and sample-clock watchdog) rate, Hz.
 const IMU_HZ: f32 = PROFILE.imu.rate_hz;
@@ -212,6 +221,22 @@ pub enum LogItem {
         /// The front end's track.
         src: Option<u8>,
     },
+    /// A change of the analog setting (gain ranging) as applied.
+    Gain(GainEvent),
+    /// A new segment: the receiver was rebuilt (mode, region or step length changed in
+    /// the menu) with this earth field, µT.
+    Header(Vec3),
+    /// A menu procedure started or ended.
+    Calibration {
+        /// Board time, s.
+        t: f64,
+        /// `step_walk` or `mag_cal`.
+        what: &'static str,
+        /// `start`, `cancelled`, or the outcome's word.
+        result: &'static str,
+        /// The step length (m) or the fit's residual (µT RMS), when done.
+        value: Option<f32>,
+    },
     /// An event with an optional count.
     Event {
         /// Board time, s.
@@ -233,6 +258,9 @@ static FRAME_ERRORS: AtomicU32 = AtomicU32::new(0);
 /// IMU ticks missed (TIM2 released again before its last release ran) and IMU records
 /// lost to a full queue.
 static MISSED_TICKS: AtomicU32 = AtomicU32::new(0);
+/// ADC samples lost while the flash stalled every task (a settings save), from the
+/// cycle counter: the processing task moves its clock on by them and logs an overrun.
+static FLASH_LOST: AtomicU32 = AtomicU32::new(0);
 static IMU_OVERRUNS: AtomicU32 = AtomicU32::new(0);
 /// Progress of the processing task (queue drained; IMU records handled), for the feeder.
 static DRAINS: AtomicU32 = AtomicU32::new(0);
@@ -258,6 +286,10 @@ static mut FRONTEND: MaybeUninit<Frontend> = MaybeUninit::uninit();
 static mut IMU_Q: MaybeUninit<Queue<ImuRecord, { IMU_QUEUE as usize }>> = MaybeUninit::uninit();
 #[unsafe(link_section = ".ccmram")]
 static mut LOG_Q: MaybeUninit<Queue<LogItem, { LOG_QUEUE as usize }>> = MaybeUninit::uninit();
+/// Settings to store (processing task → idle loop): the menu closes at most every ≈ 2 s
+/// (two long presses), the idle loop stores within its pass (≤ 0.3 s), so 3 places.
+#[unsafe(link_section = ".ccmram")]
+static mut SAVE_Q: MaybeUninit<Queue<Settings, 4>> = MaybeUninit::uninit();
 /// The crash record: in `.uninit` SRAM, so a system reset keeps it (the runtime neither
 /// zeroes nor initialises it); read and cleared once at boot, written by the panic
 /// handler and by a starving watchdog feeder.
@@ -490,34 +522,22 @@ fn watch_adc(event: ClockEvent, sampler: &mut impl Mutex<T = Sampler>) -> ClockE
     event
 }
 
-/// Applies the DSP's change of analog setting (gain ranging): the coils' PGA gain in one
-/// register write (under the DRDY task's lock) and the IF range switch.
-/// Samples already queued were taken in the old setting: the DSP discards them with the
-/// switch's settling. A failed gain write puts the switch and the DSP back on `from`.
-fn apply_range(
-    frontend: &mut Frontend,
+/// Writes a change of analog setting (gain ranging, [`firmware::board::gain`]) to the
+/// hardware: the coils' PGA gain in one register write (under the DRDY task's lock), then
+/// the IF range switch; after a failed gain write the switch stays at `from`. True when
+/// the PGA took the new gain.
+fn write_range(
     pin: &mut PC3<Output>,
-    change: RangeChange,
-    queued: usize,
+    change: &RangeChange,
     sampler: &mut impl Mutex<T = Sampler>,
-) {
-    let set_pin = |pin: &mut PC3<Output>, r: IfRange| match r {
+) -> bool {
+    let gain_ok = sampler.lock(|s| s.adc.set_coil_gains(change.to.gain).is_ok());
+    let r = if gain_ok { change.to } else { change.from };
+    match r.if_range {
         IfRange::High => pin.set_low(),
         IfRange::Low => pin.set_high(),
-    };
-    let gain_ok = sampler.lock(|s| s.adc.set_coil_gains(change.to.gain).is_ok());
-    if gain_ok {
-        set_pin(pin, change.to.if_range);
-        frontend.extend_settle(queued);
-        defmt::info!("range {} -> {} ({})", change.from, change.to, change.reason);
-    } else {
-        set_pin(pin, change.from.if_range);
-        if frontend.set_range(change.from).is_err() {
-            defmt::error!("front end refused its own setting");
-        }
-        frontend.extend_settle(queued);
-        defmt::warn!("PGA write failed: staying at {}", change.from);
     }
+    gain_ok
 }
 
 /// Board time for the session log's records, s.
@@ -533,6 +553,10 @@ pub struct View {
     battery: Option<BatteryState>,
     /// The menu, when open (drawn instead of the search screen).
     menu: Option<Menu>,
+    /// A procedure running (with its progress), or how the last one ended: drawn
+    /// instead of the menu.
+    procedure: Option<(Procedure, u32)>,
+    outcome: Option<Outcome>,
 }
 
 /// The SD card's word for the display (published by the idle loop).
@@ -548,6 +572,12 @@ fn sd_label() -> Option<&'static str> {
 /// status word, the battery gauge, the SD mark); false if the display did not take it.
 fn show(screen: &mut Screen, view: &View) -> bool {
     screen.clear(BinaryColor::Off).ok();
+    if let Some(o) = &view.outcome {
+        return procedure::draw_outcome(o, screen).is_ok() && screen.flush().is_ok();
+    }
+    if let Some((p, progress)) = view.procedure {
+        return procedure::draw(p, progress, screen).is_ok() && screen.flush().is_ok();
+    }
     if let Some(m) = &view.menu {
         return menu::draw(m, screen).is_ok() && screen.flush().is_ok();
     }
@@ -594,7 +624,14 @@ pub struct Proc {
     menu: Menu,
     muted: bool,
     chirp_until_ms: u64,
-    playing: Option<u32>,
+    /// The tone playing and its duty.
+    playing: Option<(u32, u16)>,
+    /// A menu procedure running, or the outcome shown until the next press.
+    procedure: Option<Running>,
+    outcome: Option<Outcome>,
+    /// The settings the receiver was built with (a change of mode, region or step length
+    /// in the menu rebuilds it).
+    applied: Settings,
     buzz_timer: PwmHzManager<pac::TIM4>,
     buzzer: PwmChannel<pac::TIM4, 2>,
     mag_cal: Option<MagCalibration>,
@@ -604,8 +641,10 @@ pub struct Proc {
     window_errors: u32,
     bus_stats: i2c_bus::BusStats,
     /// Overruns counted so far, by kind, and what was last logged.
-    reported: [u32; 4],
+    reported: [u32; 5],
     log_overruns: u32,
+    /// Settings to store (the idle loop writes the flash).
+    saves: Producer<'static, Settings>,
 }
 
 /// What the display task owns.
@@ -625,6 +664,11 @@ pub struct Writer {
     last_t: f64,
     /// The UART while the card logs (attached when the card fails).
     spare_uart: Option<stm32f4xx_hal::serial::Tx<pac::USART3>>,
+    /// The flash (settings saves) and the settings to store.
+    flash: LockedFlash,
+    saves: Consumer<'static, Settings>,
+    /// The ADC's sample rate, Hz (samples lost to a flash stall).
+    adc_rate_hz: f32,
 }
 
 impl Proc {
@@ -654,6 +698,13 @@ impl Proc {
             fault: self.fault,
             battery: self.battery.state(),
             menu: self.menu.item().map(|_| self.menu),
+            procedure: self.procedure.as_ref().map(|r| {
+                (
+                    r.procedure(),
+                    r.progress(self.receiver.motion().total_steps()),
+                )
+            }),
+            outcome: self.outcome,
         };
         view.lock(|slot| *slot = Some(v));
         rtic::pend(pac::Interrupt::USART2);
@@ -695,9 +746,19 @@ impl Proc {
             Ok(None) => {}
             Err(_) => defmt::warn!("front end refused a sample"),
         }
-        if let Some(change) = self.frontend.take_range_change() {
-            let queued = self.samples.len();
-            apply_range(self.frontend, &mut self.if_range, change, queued, sampler);
+        // A change of gain: to the hardware, then to the log (the replay's `gain` event).
+        let (queued, offset_us) = (self.samples.len(), self.clock.offset_us());
+        let pin = &mut self.if_range;
+        if let Some(e) = gain::apply_change(self.frontend, queued, self.rate, offset_us, |c| {
+            write_range(pin, c, sampler)
+        }) {
+            let c = e.change;
+            if e.applied {
+                defmt::info!("range {} -> {} ({})", c.from, c.to, c.reason);
+            } else {
+                defmt::warn!("PGA write failed: staying at {}", c.from);
+            }
+            self.log(LogItem::Gain(e));
         }
     }
 
@@ -719,7 +780,14 @@ impl Proc {
         // The mark button, polled at the tick (debounced over 3 ticks); in the menu it
         // leaves the menu.
         let marked = self.mark.poll();
-        if marked && self.menu.item().is_some() {
+        if marked && self.outcome.is_some() {
+            // The outcome was read: back to the menu.
+            self.outcome = None;
+            redraw = true;
+        } else if marked && self.procedure.is_some() {
+            self.finish_procedure();
+            redraw = true;
+        } else if marked && self.menu.item().is_some() {
             if let Some(MenuEvent::Closed { changed }) = self.menu.mark_button() {
                 self.close_menu(changed);
             }
@@ -784,6 +852,10 @@ impl Proc {
             self.last_imu_t = Some(t);
             match reading {
                 Ok(r) => {
+                    // The calibration fits the raw readings.
+                    if let Some(p) = self.procedure.as_mut() {
+                        p.on_mag(&r.mag);
+                    }
                     let mag = self.mag_cal.map_or(r.mag, |c| c.apply(&r.mag));
                     self.log(LogItem::Imu {
                         t: t.secs_f64(),
@@ -845,6 +917,20 @@ impl Proc {
         let Some(press) = self.press.update(self.sound_low >= 3, now_ms) else {
             return false;
         };
+        // An outcome on screen: any press takes it away. A procedure running: a short
+        // press cancels it.
+        if self.outcome.take().is_some() {
+            return true;
+        }
+        if let Some(p) = self.procedure.as_ref() {
+            if press == Press::Short {
+                let what = procedure_word(p.procedure());
+                self.procedure = None;
+                self.calibration_event(what, "cancelled", None);
+                defmt::info!("{=str} cancelled", what);
+            }
+            return true;
+        }
         match self.menu.sound_button(press) {
             MenuEvent::ToggleMute => {
                 self.muted = !self.muted;
@@ -854,9 +940,18 @@ impl Proc {
                 defmt::info!("sound {=str}", if self.muted { "off" } else { "on" });
                 false
             }
-            MenuEvent::Start(_) => {
-                // The step walk and the magnetometer calibration are not wired yet.
-                defmt::warn!("menu: procedure not available on this build");
+            MenuEvent::Start(p) => {
+                let field = self.menu.settings().earth_field().norm();
+                let steps = self.receiver.motion().total_steps();
+                match Running::start(p, steps, field) {
+                    Ok(r) => {
+                        self.procedure = Some(r);
+                        self.calibration_event(procedure_word(p), "start", None);
+                        defmt::info!("{=str} started", procedure_word(p));
+                    }
+                    // Only a region's field that is not positive: none is.
+                    Err(e) => defmt::error!("procedure refused: {}", e),
+                }
                 true
             }
             MenuEvent::Closed { changed } => {
@@ -867,14 +962,82 @@ impl Proc {
         }
     }
 
-    /// The menu closed: its settings apply from now on (volume 0 mutes); they are logged,
-    /// not yet stored (the flash write is not wired).
+    /// The mark button ends the running procedure: its outcome is shown, and a result
+    /// goes into the menu's settings (stored when the menu closes).
+    fn finish_procedure(&mut self) {
+        let Some(p) = self.procedure.take() else {
+            return;
+        };
+        let what = procedure_word(p.procedure());
+        let out = p.finish(self.receiver.motion().total_steps());
+        let mut s = *self.menu.settings();
+        if procedure::apply(&out, &mut s) {
+            self.menu.set_settings(s);
+        }
+        let value = match out {
+            Outcome::StepLength { length_m, .. } => Some(length_m),
+            Outcome::Mag(fit) => Some(fit.residual_rms_ut),
+            Outcome::WalkFailed(_) | Outcome::MagFailed(_) => None,
+        };
+        defmt::info!("{=str}: {=str}", what, out.word());
+        self.calibration_event(what, out.word(), value);
+        self.outcome = Some(out);
+    }
+
+    /// A `calibration` event: which procedure, what happened, its value.
+    fn calibration_event(&mut self, what: &'static str, result: &'static str, value: Option<f32>) {
+        let t = log_t(&self.clock);
+        self.log(LogItem::Calibration {
+            t,
+            what,
+            result,
+            value,
+        });
+    }
+
+    /// The receiver rebuilt in place for `s` (a new search): mode, earth field, step
+    /// length; the log starts a new segment with the new earth field.
+    fn rebuild_receiver(&mut self, s: &Settings) {
+        let step = s
+            .calibration
+            .step_length_m
+            .or(PROFILE.defaults.step_length_m);
+        let mut cfg = PROFILE.app_config(s.earth_field(), step);
+        cfg.mode = s.mode.app();
+        match rebuild(self.receiver, cfg) {
+            Ok(()) => {
+                self.applied = *s;
+                self.last_imu_t = None;
+                self.shown = self.receiver.display_model();
+                self.log(LogItem::Header(s.earth_field()));
+                defmt::info!("receiver rebuilt: mode {=str}", s.mode.word());
+            }
+            Err(e) => defmt::error!("new settings refused by the receiver: {}", e),
+        }
+    }
+
+    /// The menu closed: its settings apply from now on (volume 0 mutes; a new mode,
+    /// region or step length rebuilds the receiver: a new search), are logged and go to
+    /// the idle loop to be stored in flash (it stalls every task while it writes).
     fn close_menu(&mut self, changed: bool) {
         if changed {
             let s = *self.menu.settings();
             self.muted = s.volume == 0;
-            defmt::info!("settings changed (volume {=u8}); not stored", s.volume);
-            self.event("settings", Some("menu"), Some(i64::from(s.volume)));
+            self.mag_cal = s.calibration.mag;
+            let a = &self.applied;
+            if (s.mode, s.region, s.calibration.step_length_m)
+                != (a.mode, a.region, a.calibration.step_length_m)
+            {
+                self.rebuild_receiver(&s);
+            }
+            let why = if self.saves.enqueue(s).is_ok() {
+                defmt::info!("settings changed (volume {=u8}); saving", s.volume);
+                "menu"
+            } else {
+                defmt::warn!("settings changed; not stored (saves pending)");
+                "menu_not_saved"
+            };
+            self.event("settings", Some(why), Some(i64::from(s.volume)));
         }
     }
 
@@ -894,32 +1057,41 @@ impl Proc {
                 now_ms,
             )
         };
-        if tone != self.playing {
-            match tone {
-                Some(hz) => {
+        // The menu's volume (its copy: a change is heard while choosing it); the sound
+        // button's "on" plays at least the lowest step.
+        let volume = self.menu.settings().volume.max(1);
+        let play = tone.map(|hz| (hz, sound::duty(self.buzzer.get_max_duty(), volume)));
+        if play != self.playing {
+            match play {
+                Some((hz, duty)) => {
                     self.buzz_timer.set_period(hz.Hz());
-                    self.buzzer.set_duty(self.buzzer.get_max_duty() / 2);
+                    self.buzzer.set_duty(duty);
                 }
                 None => self.buzzer.set_duty(0),
             }
-            self.playing = tone;
+            self.playing = play;
         }
     }
 
     /// Logs each kind of overrun whose count grew: samples dropped (queue full), IMU
     /// ticks missed, IMU records lost (queue full), log records lost (queue full; logged
-    /// once the queue has room again).
+    /// once the queue has room again), samples lost while the flash stalled (a settings
+    /// save: the clock moves on by them).
     fn overruns(&mut self) {
         let now = [
             DROPPED.load(Ordering::Relaxed),
             MISSED_TICKS.load(Ordering::Relaxed),
             IMU_OVERRUNS.load(Ordering::Relaxed),
             self.log_overruns,
+            FLASH_LOST.load(Ordering::Relaxed),
         ];
-        const WHY: [&str; 4] = ["adc_queue", "imu_tick", "imu_queue", "log_queue"];
+        const WHY: [&str; 5] = ["adc_queue", "imu_tick", "imu_queue", "log_queue", "flash"];
         for ((n, last), why) in now.into_iter().zip(self.reported).zip(WHY) {
             let new = n.wrapping_sub(last);
             if new > 0 {
+                if why == "flash" {
+                    self.clock.skip(new);
+                }
                 defmt::warn!("overrun {=str}: {=u32}", why, new);
                 self.event("overrun", Some(why), Some(i64::from(new)));
             }
@@ -942,6 +1114,35 @@ impl Writer {
                     self.last_t = t;
                     self.log.pulse(t, &m, src);
                 }
+                LogItem::Gain(e) => {
+                    self.last_t = Instant::from_micros(e.t_us).secs_f64();
+                    self.log.gain(&e);
+                }
+                LogItem::Header(earth) => {
+                    self.log.header(PROFILE.imu.rate_hz, &earth, true);
+                }
+                LogItem::Calibration {
+                    t,
+                    what,
+                    result,
+                    value,
+                } => {
+                    self.last_t = t;
+                    match value {
+                        Some(v) => self.log.event(
+                            t,
+                            "calibration",
+                            Some(what),
+                            &[("result", Detail::Text(result)), ("value", Detail::Num(v))],
+                        ),
+                        None => self.log.event(
+                            t,
+                            "calibration",
+                            Some(what),
+                            &[("result", Detail::Text(result))],
+                        ),
+                    }
+                }
                 LogItem::Event {
                     t,
                     kind,
@@ -956,6 +1157,9 @@ impl Writer {
                 }
             }
             self.supervise();
+        }
+        if let Some(s) = self.saves.dequeue() {
+            self.save_settings(&s);
         }
         let now = self.ms_clock.now_ms(DWT::cycle_count());
         // The SD card: flushed when due; a failure shows and is reported.
@@ -980,6 +1184,63 @@ impl Writer {
         }
         SD_MARK.store(mark, Ordering::Relaxed);
         self.supervise();
+    }
+
+    /// Stores `s` in flash (`board::settings_store`: the next free slot of sector 11,
+    /// read back). The flash stalls instruction fetch while it programs (144 bytes,
+    /// ≈ 2 ms) and, once every 910 saves, while it erases the sector (up to 4 s): every
+    /// task and interrupt stalls with it. So the watchdog's period is raised around the
+    /// write, the progress stamps restart after it, and the ADC samples it cost (the
+    /// samples its time should have brought minus those the DRDY task read) go to the
+    /// processing task, which moves its clock on by them and logs an `overrun`. The
+    /// outcome is a `settings` event.
+    fn save_settings(&mut self, s: &Settings) {
+        let read0 = SAMPLES.load(Ordering::Relaxed);
+        set_watchdog_period(&mut self.iwdg, SAVE_IWDG_MS);
+        let t0 = self.ms_clock.now_ms(DWT::cycle_count());
+        let r = settings_store::save(&mut self.flash.unlocked(), BOARD_AREA, s);
+        let t1 = self.ms_clock.now_ms(DWT::cycle_count());
+        set_watchdog_period(&mut self.iwdg, IWDG_PERIOD_MS);
+        for work in Work::ALL {
+            self.watch.progress(work, t1);
+        }
+        let stall_ms = t1.saturating_sub(t0);
+        let due = (stall_ms as f32 * self.adc_rate_hz / 1000.0) as u32;
+        let read = SAMPLES.load(Ordering::Relaxed).wrapping_sub(read0);
+        // Each count is ±1 sample at its ends: a difference of 2 is no loss.
+        let lost = due.saturating_sub(read);
+        if lost > 2 {
+            FLASH_LOST.fetch_add(lost, Ordering::Relaxed);
+        }
+        let t = self.last_t;
+        let stall = (
+            "stall_ms",
+            Detail::Int(i64::try_from(stall_ms).unwrap_or(i64::MAX)),
+        );
+        match r {
+            Ok(saved) => {
+                defmt::info!("settings saved: {} in {=u64} ms", saved, stall_ms);
+                self.log.event(
+                    t,
+                    "settings",
+                    Some("saved"),
+                    &[
+                        ("slot", Detail::Int(i64::from(saved.slot))),
+                        ("erased", Detail::Flag(saved.erased)),
+                        stall,
+                    ],
+                );
+            }
+            Err(e) => {
+                defmt::error!("settings not saved: {}", e);
+                self.log.event(
+                    t,
+                    "settings",
+                    Some("not_saved"),
+                    &[("error", Detail::Text(e.word())), stall],
+                );
+            }
+        }
     }
 
     /// Feeds the watchdog while the processing task progresses.
@@ -1010,6 +1271,44 @@ impl Writer {
             }
         }
     }
+}
+
+/// The log's word for a menu procedure.
+fn procedure_word(p: Procedure) -> &'static str {
+    match p {
+        Procedure::StepWalk => "step_walk",
+        Procedure::MagCalibration => "mag_cal",
+    }
+}
+
+/// Builds a new receiver for `cfg` in the place of `receiver` (≈ 88 KB: never on the
+/// stack); the old one is left as it was when `cfg` is refused.
+fn rebuild(receiver: &mut Receiver, cfg: AppConfig) -> Result<(), AppError> {
+    // SAFETY: `MaybeUninit<Receiver>` has `Receiver`'s layout, the pointer comes from a
+    // unique reference and is used only for this call, and `emplace` leaves a valid
+    // receiver behind (it checks `cfg` before it writes). The old receiver is forgotten,
+    // not dropped (as `ptr::write` does): it owns no heap and no device, only inline
+    // `heapless` buffers of plain data, so nothing leaks.
+    let slot = unsafe { &mut *core::ptr::from_mut(receiver).cast::<MaybeUninit<Receiver>>() };
+    Receiver::emplace(slot, cfg).map(|_| ())
+}
+
+/// Sets the independent watchdog's period and feeds it. The IWDG takes a new reload value
+/// only once its last update is done (SR.PVU/RVU clear after a few LSI cycles, RM0090):
+/// waited for before and after, at most 50 ms each.
+fn set_watchdog_period(iwdg: &mut IndependentWatchdog, ms: u32) {
+    let updating = || {
+        // SAFETY: a read of the IWDG's status register, which has no side effect.
+        unsafe { (*pac::IWDG::ptr()).sr().read().bits() & 0b11 != 0 }
+    };
+    let wait = || {
+        let start = DWT::cycle_count();
+        while updating() && DWT::cycle_count().wrapping_sub(start) < 50 * (SYSCLK_HZ / 1000) {}
+    };
+    wait();
+    iwdg.start(ms.millis());
+    wait();
+    iwdg.feed();
 }
 
 #[rtic::app(device = stm32f4xx_hal::pac, peripherals = true)]
@@ -1107,17 +1406,11 @@ mod app {
         };
         // SAFETY: the only reference ever taken to LOG, here, once; then the idle loop's.
         let log = unsafe { &mut *core::ptr::addr_of_mut!(LOG) }.write(BoardLog::new(sd, stream));
-        // The unit's settings from flash sector 11 (defaults, with the reason, when erased or
-        // corrupt).
-        // SAFETY: SETTINGS_LEN bytes of memory-mapped flash inside the reserved sector
-        // (memory.x), always readable; nothing writes flash while this boot reads it.
-        let stored = unsafe {
-            core::slice::from_raw_parts(
-                settings::SETTINGS_ADDR as *const u8,
-                settings::SETTINGS_LEN,
-            )
-        };
-        let (settings, settings_error) = Settings::load(stored);
+        // The unit's settings from flash sector 11: the newest block saved (defaults, with
+        // the reason, when none is readable).
+        let mut flash = LockedFlash::new(dp.FLASH);
+        let loaded = settings_store::load(&mut flash, BOARD_AREA);
+        let (settings, settings_error) = (loaded.settings, loaded.defaults_because);
         let step_length_m = settings
             .calibration
             .step_length_m
@@ -1142,7 +1435,7 @@ mod app {
                     "step_length_m",
                     step_length_m.map_or(Detail::Text("none"), Detail::Num),
                 ),
-                ("mode", Detail::Text("sog")),
+                ("mode", Detail::Text(settings.mode.word())),
                 ("volume", Detail::Int(i64::from(settings.volume))),
                 ("region", Detail::Text(region)),
                 (
@@ -1150,10 +1443,23 @@ mod app {
                     Detail::Flag(settings.calibration.antenna.is_some()),
                 ),
                 ("mag_cal", Detail::Flag(settings.calibration.mag.is_some())),
+                (
+                    "slot",
+                    loaded
+                        .slot
+                        .map_or(Detail::Text("none"), |k| Detail::Int(i64::from(k))),
+                ),
+                ("torn", Detail::Int(i64::from(loaded.torn))),
             ],
         );
         if let Some(e) = settings_error {
             defmt::warn!("settings: {}; defaults apply", e);
+        }
+        if loaded.torn > 0 {
+            defmt::warn!(
+                "settings: {=u32} newer blocks torn (a save cut short)",
+                loaded.torn
+            );
         }
         // The logged and processed magnetometer reading is the calibrated one (the spec's
         // body-frame field), so a replay needs no calibration of its own.
@@ -1247,7 +1553,8 @@ mod app {
         }
 
         // The application in SRAM.
-        let cfg = PROFILE.app_config(earth, step_length_m);
+        let mut cfg = PROFILE.app_config(earth, step_length_m);
+        cfg.mode = settings.mode.app();
         // SAFETY: the only reference ever taken to RECEIVER, here, once, before any task
         // runs; then the processing task's alone.
         let slot = unsafe { &mut *core::ptr::addr_of_mut!(RECEIVER) };
@@ -1278,11 +1585,15 @@ mod app {
         let (log_in, log_out) = unsafe { &mut *core::ptr::addr_of_mut!(LOG_Q) }
             .write(Queue::new())
             .split();
+        // SAFETY: as for the queues above: once, here; one end per task.
+        let (saves_in, saves_out) = unsafe { &mut *core::ptr::addr_of_mut!(SAVE_Q) }
+            .write(Queue::new())
+            .split();
         // The mark button: flags the victim being guided to as found.
         let mark = MarkButton::new(gpioc.pc6.into_pull_up_input());
         // The sound button: the same debounced press, on D12.
         let sound_pin = gpioc.pc2.into_pull_up_input();
-        // Volume steps are not wired to the buzzer yet (50 % duty): 0 mutes.
+        // Volume 0 mutes; the other steps set the buzzer's duty (`sound::duty`).
         let muted = !SOUND_ON || settings.volume == 0;
         // The IF range switch starts in the high range, the ADC at the profile's gain: the
         // DSP's starting setting (`BoardProfile::start_range`).
@@ -1354,6 +1665,9 @@ mod app {
                     muted,
                     chirp_until_ms: 0,
                     playing: None,
+                    procedure: None,
+                    outcome: None,
+                    applied: settings,
                     buzz_timer,
                     buzzer,
                     mag_cal,
@@ -1362,8 +1676,9 @@ mod app {
                     window_samples: SAMPLES.load(Ordering::Relaxed),
                     window_errors: FRAME_ERRORS.load(Ordering::Relaxed),
                     bus_stats,
-                    reported: [0; 4],
+                    reported: [0; 5],
                     log_overruns: 0,
+                    saves: saves_in,
                 },
                 display: Display { screen },
                 writer: Writer {
@@ -1376,6 +1691,9 @@ mod app {
                     progress: [0; 2],
                     last_t: 0.0,
                     spare_uart,
+                    flash,
+                    saves: saves_out,
+                    adc_rate_hz: rate,
                 },
             },
         )

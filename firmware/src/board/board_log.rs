@@ -8,19 +8,23 @@
 //! | kind | why | extra keys |
 //! |---|---|---|
 //! | `reset` | `clean`, `panic`, `watchdog` or `hung` | `message` (the crash record's text) |
-//! | `settings` | – | the settings' keys (see the board binary) |
+//! | `settings` | `stored` or `defaults` (boot), `menu` (changed in the menu), `saved` or `not_saved` (the flash write) | boot: the settings' keys, `slot`, `torn`; menu: `count` (volume); save: `slot`, `erased`, `stall_ms` or `error` |
+//! | `gain` | `saturated`, `strong` or `weak` (the ranging rule's reason) | `range`, `pga` (the setting asked for: IF range `high`/`low`, PGA gain 1–128), `from_range`, `from_pga` (the setting before), `applied` (false: the PGA write failed, the hardware stays at `from_*`); `t` is the first sample in the new setting |
 //! | `withheld` | `overlap`, `saturated`, `truncated` | – |
 //! | `read_error` | `imu` or `adc` | `count` (ADC: failed frames in the last second) |
-//! | `overrun` | `adc_queue`, `imu_tick`, `imu_queue` or `log_queue` | `count` (samples dropped, IMU ticks missed, IMU records or log records lost since the last report) |
+//! | `overrun` | `adc_queue`, `imu_tick`, `imu_queue`, `log_queue` or `flash` | `count` (samples dropped, IMU ticks missed, IMU records or log records lost since the last report; `flash`: ADC samples lost while a settings save stalled the flash) |
 //! | `mark` | – | – |
+//! | `calibration` | `step_walk` or `mag_cal` (a menu procedure) | `result` (`start`, `cancelled`, `done` or the failure's word), `value` (step length m, or the fit's residual µT RMS) |
 //! | `fault` | the fault's word, or `cleared` | – |
 //! | `log_error` | `sd` or `uart` | `failed`, `refused` (records lost on every writer, records refused), `sd_lost_bytes`, `sd` (the card's word or `logging`) |
 
 use crate::Vec3;
 use crate::board::crash::LastReset;
+use crate::board::gain::{GainEvent, if_word, reason_word};
 use crate::board::sd_log::{SdSink, SdState};
 use crate::frontend::PulseMeasurement;
 use crate::session_log::{Detail, Recorder, RecorderStats, Tee, plain_text};
+use crate::timebase::Instant;
 use core::fmt::Write;
 use embedded_sdmmc::BlockDevice;
 
@@ -88,6 +92,24 @@ impl<D: BlockDevice, U: Write> BoardLog<D, U> {
         }
     }
 
+    /// A change of the analog setting (gain ranging), as the board applied it.
+    pub fn gain(&mut self, e: &GainEvent) {
+        let t = Instant::from_micros(e.t_us).secs_f64();
+        let (from, to) = (e.change.from, e.change.to);
+        self.event(
+            t,
+            "gain",
+            Some(reason_word(e.change.reason)),
+            &[
+                ("range", Detail::Text(if_word(to.if_range))),
+                ("pga", Detail::Int(i64::from(to.gain.factor()))),
+                ("from_range", Detail::Text(if_word(from.if_range))),
+                ("from_pga", Detail::Int(i64::from(from.gain.factor()))),
+                ("applied", Detail::Flag(e.applied)),
+            ],
+        );
+    }
+
     /// Any event (written with `seq`; errors counted).
     pub fn event(&mut self, t: f64, kind: &str, why: Option<&str>, details: &[(&str, Detail<'_>)]) {
         let _counted = self.rec.event(t, kind, why, details);
@@ -102,6 +124,11 @@ impl<D: BlockDevice, U: Write> BoardLog<D, U> {
         }
         *b = Some(uart);
         None
+    }
+
+    /// The UART stream's writer, if one streams.
+    pub fn uart(&self) -> Option<&U> {
+        self.rec.writer_ref().b.as_ref()
     }
 
     /// The SD card's state.

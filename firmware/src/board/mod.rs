@@ -3,20 +3,24 @@
 //! parts of the board binary's supervision: the progress-checked watchdog feeder
 //! ([`watchdog`]), the crash record kept across a reset ([`crash`]), the guarded and
 //! recoverable I2C bus ([`i2c_bus`]), the sensor-fault and battery display
-//! ([`health`]), the guidance tones ([`sound`]) and the session log on the microSD card
+//! ([`health`]), gain ranging applied and logged ([`gain`]), the guidance tones ([`sound`]) and the session log on the microSD card
 //! ([`sd_log`]) with the device events a replay needs ([`board_log`]), the settings stored in flash
-//! ([`settings`]) and the two-button menu that edits them ([`menu`]).
+//! ([`settings`], kept safe against power cuts by [`settings_store`]) and the two-button menu that edits them ([`menu`])
+//! with its calibration procedures ([`procedure`]).
 
 pub mod board_log;
 pub mod crash;
+pub mod gain;
 pub mod health;
 pub mod i2c_bus;
 pub mod menu;
 pub mod pins;
+pub mod procedure;
 pub mod profile;
 pub mod schedule;
 pub mod sd_log;
 pub mod settings;
+pub mod settings_store;
 pub mod sound;
 pub mod watchdog;
 

@@ -74,6 +74,24 @@ pub enum SearchMode {
     Classic,
 }
 
+impl SearchMode {
+    /// The application's mode.
+    pub fn app(self) -> crate::app::SearchMode {
+        match self {
+            SearchMode::Sog => crate::app::SearchMode::Sog,
+            SearchMode::Classic => crate::app::SearchMode::Classic,
+        }
+    }
+
+    /// The session log's word for it.
+    pub fn word(self) -> &'static str {
+        match self {
+            SearchMode::Sog => "sog",
+            SearchMode::Classic => "classic",
+        }
+    }
+}
+
 /// The unit's settings.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Settings {
@@ -236,6 +254,13 @@ mod tests {
                 ..CalibrationRecord::EMPTY
             },
         }
+    }
+
+    #[test]
+    fn modes_map_to_the_application() {
+        assert_eq!(SearchMode::Sog.app(), crate::app::SearchMode::Sog);
+        assert_eq!(SearchMode::Classic.app(), crate::app::SearchMode::Classic);
+        assert_eq!(SearchMode::Classic.word(), "classic");
     }
 
     #[test]

@@ -15,6 +15,8 @@
 //! | probe here | [`PROBE_HZ`] alternating every [`PROBE_SWAP_MS`], continuous |
 //! | sensor fault | [`FAULT_HZ`]: three 100 ms beeps every 2 s |
 //! | no signal, or muted | silence |
+//!
+//! Volume: the PWM duty ([`duty`]), 0 / −6 / −14 dB for the settings' steps 3 / 2 / 1.
 
 use super::health::Fault;
 use crate::guidance::Status;
@@ -94,9 +96,40 @@ pub fn tone_at(input: &SoundInput, t_ms: u64) -> Option<u32> {
     }
 }
 
+/// The PWM duty for volume step `volume` (0 = silent … [`crate::board::settings::MAX_VOLUME`]) on a timer whose
+/// full duty is `max_duty`. A passive piezo driven by a rectangular wave of duty `d` gets
+/// a fundamental of amplitude `(2/π)·sin(π d)`: duties 1/2, 1/6 and 1/16 give 0, −6 and
+/// −14 dB, steps a rescuer hears apart without a quiet step that vanishes in the wind.
+pub fn duty(max_duty: u16, volume: u8) -> u16 {
+    let div = match volume {
+        0 => return 0,
+        1 => 16,
+        2 => 6,
+        _ => 2,
+    };
+    max_duty / div
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn volume_steps_are_quieter_duties_and_zero_is_silent() {
+        let max = 4000;
+        let duties: [u16; 4] = [0, 1, 2, 3].map(|v| duty(max, v));
+        assert_eq!(duties, [0, 250, 666, 2000]);
+        assert_eq!(duty(max, 200), 2000);
+        // Fundamental level relative to the loudest step, dB: 0 > −6 > −14.
+        let db = |d: u16| {
+            let x = f32::from(d) / f32::from(max);
+            20.0 * libm::log10f(libm::sinf(core::f32::consts::PI * x))
+        };
+        assert!((db(duties[2]) + 6.0).abs() < 0.1, "{}", db(duties[2]));
+        assert!((db(duties[1]) + 14.2).abs() < 0.2, "{}", db(duties[1]));
+        // A timer with a tiny range still sounds at every step but 0.
+        assert!(duty(16, 1) > 0);
+    }
 
     fn input(status: Status, d: Option<f32>) -> SoundInput {
         SoundInput {
