@@ -51,8 +51,8 @@ use crate::frame::rotation_from_rpy;
 use crate::frontend::{Frontend, FrontendError, PulseMeasurement};
 use crate::guidance::classic::{ClassicConfig, ClassicError, ClassicScreen, ClassicSearch};
 use crate::guidance::{
-    Guidance, GuidanceConfig, GuidanceInput, GuidanceOutput, HeightPrompt, Status, relative_arrow,
-    to_degrees_wrapped,
+    Guidance, GuidanceConfig, GuidanceInput, GuidanceOutput, HeightPrompt, Status,
+    heading_supports, relative_arrow, to_degrees_wrapped,
 };
 use crate::motion::{Motion, MotionConfig, MotionError};
 use crate::timebase::{Epoch, Instant, pulse_centre_us};
@@ -769,6 +769,7 @@ impl Receiver {
                 h_g: (!gated).then_some(h_g),
                 walked_m: own.distance_m,
                 yaw: rpy.z,
+                yaw_var: cov.m33,
                 estimate: self.bank.filter(slot).estimate(),
                 reinitialized,
                 signal_lost,
@@ -888,15 +889,22 @@ impl Receiver {
         // pulses lost in interference): only a mixture the search control had trusted
         // (localized), under "no signal"; a flux-line mixture does not say where to go.
         let several = self.bank.len() >= 2;
-        let silent = (status == Status::NoSignal && (several || g.status == Status::Localized))
-            .then(|| self.target_position_now())
-            .flatten()
-            .and_then(|p| {
-                let arrow = arrow_deg_to(&p, yaw);
-                arrow
-                    .is_finite()
-                    .then_some((arrow, p.xy().norm(), p.norm()))
-            });
+        // Without a heading (no magnetometer) no position is shown as a place to walk
+        // to (see `guidance::heading_supports`).
+        let heading = heading_supports(
+            self.motion.attitude().1.m33,
+            self.guidance.config().go_to_mean_d2,
+        );
+        let silent =
+            (status == Status::NoSignal && heading && (several || g.status == Status::Localized))
+                .then(|| self.target_position_now())
+                .flatten()
+                .and_then(|p| {
+                    let arrow = arrow_deg_to(&p, yaw);
+                    arrow
+                        .is_finite()
+                        .then_some((arrow, p.xy().norm(), p.norm()))
+                });
         let (status, arrow_deg, walk_m, horizontal_m, distance_m) = match silent {
             Some((arrow, h, d)) => {
                 let shown = if several {

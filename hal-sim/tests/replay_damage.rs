@@ -1,11 +1,12 @@
 //! `hal-sim replay` on damaged and reordered logs, end to end: a simulated log in the
 //! board's order, with a byte-order mark, torn, with garbage, concatenated, with lost
 //! records (`seq`), piped into `head`, and fed live on standard input; a bus-level
-//! simulation written as the board writes (pulses late, `seq`).
+//! simulation written as the board writes (pulses late, `seq`); a log without
+//! magnetometer (never "localized").
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 mod common;
 
-use common::{hal_sim, is_pulse, joined, simulated, t_of, text};
+use common::{NEES_3SIGMA, final_nees, hal_sim, is_pulse, joined, simulated, t_of, text};
 use std::io::{BufRead, BufReader, Write};
 use std::path::Path;
 use std::process::{Command, Stdio};
@@ -229,4 +230,59 @@ fn a_bus_level_log_is_written_in_the_boards_order_and_replays() {
     let (again, err, ok) = replay(&dir, "sorted.jsonl", &joined(&sorted), &[]);
     assert!(ok, "{err}");
     assert_eq!(again, out);
+}
+
+/// Issue 22 item 5: "when the inputs cannot support a belief, the covariance says so and
+/// the status is not localized". Without a magnetometer the heading is unknown: the
+/// position in G_k is declared unknown by its covariance (truth inside 3σ at the end) and
+/// the display never sends the rescuer to it (`guidance::heading_supports`), while the
+/// same search with its magnetometer is localized.
+#[test]
+fn without_a_magnetometer_the_display_is_never_localized() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("sim");
+    let out = hal_sim(&[
+        "simulate",
+        "--preset",
+        "paper",
+        "--seed",
+        "3",
+        "--max-duration-s",
+        "120",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let log = std::fs::read_to_string(dir.join("session.jsonl")).unwrap();
+    let truth = std::fs::read_to_string(dir.join("truth.jsonl")).unwrap();
+    let status = |lines: &[String], s: &str| {
+        let word = format!("\"status\":\"{s}\"");
+        lines.iter().filter(|l| l.contains(&word)).count()
+    };
+    let (with_mag, err, ok) = replay(&dir, "with_mag.jsonl", log.as_bytes(), &[]);
+    assert!(ok, "{err}");
+    assert!(
+        status(&with_mag, "localized") > 0,
+        "with its magnetometer: localized"
+    );
+    let no_mag: Vec<String> = log
+        .lines()
+        .map(|l| {
+            let mut r: serde_json::Value = serde_json::from_str(l).unwrap();
+            if r["type"] == "imu" {
+                r.as_object_mut().unwrap().remove("mag");
+            }
+            r.to_string()
+        })
+        .collect();
+    let (lines, err, ok) = replay(&dir, "no_mag.jsonl", &joined(&no_mag), &[]);
+    assert!(ok, "{err}");
+    assert_eq!(lines.len(), with_mag.len());
+    assert_eq!(status(&lines, "localized") + status(&lines, "probe"), 0);
+    assert!(status(&lines, "flux-line") > 0);
+    let nees = final_nees(&truth, &lines, 0.0).expect("an estimate at the end");
+    assert!(
+        nees <= NEES_3SIGMA,
+        "truth outside 3σ at the end: NEES {nees:.2}"
+    );
 }

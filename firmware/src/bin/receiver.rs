@@ -74,25 +74,25 @@ use embedded_graphics::pixelcolor::BinaryColor;
 use embedded_graphics::prelude::*;
 use embedded_hal::delay::DelayNs;
 use embedded_hal_bus::spi::ExclusiveDevice;
-use firmware::Vec3;
 use firmware::app::{AppConfig, AppError, DisplayModel, Receiver};
 use firmware::board::board_log::BoardLog;
 use firmware::board::crash::{self, CrashKind, CrashRecord, LastReset};
-use firmware::board::gain::{self, GainEvent};
-use firmware::board::health::{self, Battery, BatteryState, Fault, SensorHealth};
+use firmware::board::gain;
+use firmware::board::health::{self, Battery, Fault, SensorHealth};
 use firmware::board::i2c_bus::{self, ClearError, Cleared, Guarded, Recoverable};
-use firmware::board::menu::{self, Menu, MenuEvent, Press, PressDetector, Procedure};
+use firmware::board::log_item::{LogItem, Overruns};
+use firmware::board::menu::{Menu, MenuEvent, Press, PressDetector, Procedure};
 use firmware::board::procedure::{self, Outcome, Running};
 use firmware::board::schedule::{
-    IMU_QUEUE, LOG_QUEUE, PRIO_DISPLAY, PRIO_DRDY, PRIO_IMU, PRIO_PROCESS,
+    self, IMU_QUEUE, LOG_QUEUE, PRIO_DISPLAY, PRIO_DRDY, PRIO_IMU, PRIO_PROCESS,
 };
 use firmware::board::sd_log::SdState;
 use firmware::board::settings::{self, Settings};
 use firmware::board::settings_store::{self, BOARD_AREA};
 use firmware::board::sound::{self, SoundInput};
+use firmware::board::view::{self, View};
 use firmware::board::watchdog::{MonotonicMs, ProgressWatch, TickMisses, Verdict, Work};
 use firmware::board::{self, BoardProfile, pins};
-use firmware::display;
 use firmware::drivers::ads131m04::Ads131m04;
 use firmware::drivers::imu::{Imu, ImuReading};
 use firmware::frontend::{Frontend, IfRange, PulseMeasurement, RangeChange};
@@ -197,57 +197,6 @@ pub struct ImuRecord {
     queued: u32,
     /// The reading (`None`: no IMU up; `Some(Err)`: the read failed).
     reading: Option<Result<ImuReading, ()>>,
-}
-
-/// A session-log record, formatted and written by the idle loop.
-pub enum LogItem {
-    /// An IMU sample (magnetometer calibrated).
-    Imu {
-        /// Board time, s.
-        t: f64,
-        /// Specific force, m/s².
-        acc: Vec3,
-        /// Angular rate, rad/s.
-        gyr: Vec3,
-        /// Magnetic field (calibrated), µT.
-        mag: Vec3,
-    },
-    /// A pulse the front end finished (or why it was withheld).
-    Pulse {
-        /// Board time of the pulse's centre, s.
-        t: f64,
-        /// Its field, or why there is none.
-        m: PulseMeasurement,
-        /// The front end's track.
-        src: Option<u8>,
-    },
-    /// A change of the analog setting (gain ranging) as applied.
-    Gain(GainEvent),
-    /// A new segment: the receiver was rebuilt (mode, region or step length changed in
-    /// the menu) with this earth field, µT.
-    Header(Vec3),
-    /// A menu procedure started or ended.
-    Calibration {
-        /// Board time, s.
-        t: f64,
-        /// `step_walk` or `mag_cal`.
-        what: &'static str,
-        /// `start`, `cancelled`, or the outcome's word.
-        result: &'static str,
-        /// The step length (m) or the fit's residual (µT RMS), when done.
-        value: Option<f32>,
-    },
-    /// An event with an optional count.
-    Event {
-        /// Board time, s.
-        t: f64,
-        /// The spec's event kind.
-        kind: &'static str,
-        /// Its cause.
-        why: Option<&'static str>,
-        /// The `count` key.
-        count: Option<i64>,
-    },
 }
 
 /// ADC samples taken (DRDY edges), queued, dropped (queue full), failed frames.
@@ -545,20 +494,6 @@ fn log_t(clock: &SampleClock) -> f64 {
     clock.now().secs_f64()
 }
 
-/// What the display task draws: the newest model with the health overlay.
-#[derive(Clone, Copy)]
-pub struct View {
-    model: DisplayModel,
-    fault: Option<Fault>,
-    battery: Option<BatteryState>,
-    /// The menu, when open (drawn instead of the search screen).
-    menu: Option<Menu>,
-    /// A procedure running (with its progress), or how the last one ended: drawn
-    /// instead of the menu.
-    procedure: Option<(Procedure, u32)>,
-    outcome: Option<Outcome>,
-}
-
 /// The SD card's word for the display (published by the idle loop).
 fn sd_label() -> Option<&'static str> {
     match SD_MARK.load(Ordering::Relaxed) {
@@ -572,19 +507,7 @@ fn sd_label() -> Option<&'static str> {
 /// status word, the battery gauge, the SD mark); false if the display did not take it.
 fn show(screen: &mut Screen, view: &View) -> bool {
     screen.clear(BinaryColor::Off).ok();
-    if let Some(o) = &view.outcome {
-        return procedure::draw_outcome(o, screen).is_ok() && screen.flush().is_ok();
-    }
-    if let Some((p, progress)) = view.procedure {
-        return procedure::draw(p, progress, screen).is_ok() && screen.flush().is_ok();
-    }
-    if let Some(m) = &view.menu {
-        return menu::draw(m, screen).is_ok() && screen.flush().is_ok();
-    }
-    display::draw(&view.model, screen).is_ok()
-        && health::draw_overlay(view.fault, view.battery, screen).is_ok()
-        && health::draw_sd_mark(sd_label(), screen).is_ok()
-        && screen.flush().is_ok()
+    view::draw(view, sd_label(), screen).is_ok() && screen.flush().is_ok()
 }
 
 /// What the IMU tick task owns.
@@ -641,7 +564,7 @@ pub struct Proc {
     window_errors: u32,
     bus_stats: i2c_bus::BusStats,
     /// Overruns counted so far, by kind, and what was last logged.
-    reported: [u32; 5],
+    reported: Overruns,
     log_overruns: u32,
     /// Settings to store (the idle loop writes the flash).
     saves: Producer<'static, Settings>,
@@ -1009,7 +932,10 @@ impl Proc {
                 self.applied = *s;
                 self.last_imu_t = None;
                 self.shown = self.receiver.display_model();
-                self.log(LogItem::Header(s.earth_field()));
+                self.log(LogItem::Header {
+                    imu_hz: PROFILE.imu.rate_hz,
+                    earth_ut: s.earth_field(),
+                });
                 defmt::info!("receiver rebuilt: mode {=str}", s.mode.word());
             }
             Err(e) => defmt::error!("new settings refused by the receiver: {}", e),
@@ -1078,6 +1004,7 @@ impl Proc {
     /// once the queue has room again), samples lost while the flash stalled (a settings
     /// save: the clock moves on by them).
     fn overruns(&mut self) {
+        // In the order of `log_item::OVERRUN_KINDS`.
         let now = [
             DROPPED.load(Ordering::Relaxed),
             MISSED_TICKS.load(Ordering::Relaxed),
@@ -1085,18 +1012,13 @@ impl Proc {
             self.log_overruns,
             FLASH_LOST.load(Ordering::Relaxed),
         ];
-        const WHY: [&str; 5] = ["adc_queue", "imu_tick", "imu_queue", "log_queue", "flash"];
-        for ((n, last), why) in now.into_iter().zip(self.reported).zip(WHY) {
-            let new = n.wrapping_sub(last);
-            if new > 0 {
-                if why == "flash" {
-                    self.clock.skip(new);
-                }
-                defmt::warn!("overrun {=str}: {=u32}", why, new);
-                self.event("overrun", Some(why), Some(i64::from(new)));
+        for (why, new) in self.reported.report(now) {
+            if why == "flash" {
+                self.clock.skip(new);
             }
+            defmt::warn!("overrun {=str}: {=u32}", why, new);
+            self.event("overrun", Some(why), Some(i64::from(new)));
         }
-        self.reported = now;
     }
 }
 
@@ -1105,56 +1027,8 @@ impl Writer {
     /// watchdog.
     fn pass(&mut self) {
         while let Some(item) = self.items.dequeue() {
-            match item {
-                LogItem::Imu { t, acc, gyr, mag } => {
-                    self.last_t = t;
-                    self.log.imu(t, &acc, &gyr, Some(&mag));
-                }
-                LogItem::Pulse { t, m, src } => {
-                    self.last_t = t;
-                    self.log.pulse(t, &m, src);
-                }
-                LogItem::Gain(e) => {
-                    self.last_t = Instant::from_micros(e.t_us).secs_f64();
-                    self.log.gain(&e);
-                }
-                LogItem::Header(earth) => {
-                    self.log.header(PROFILE.imu.rate_hz, &earth, true);
-                }
-                LogItem::Calibration {
-                    t,
-                    what,
-                    result,
-                    value,
-                } => {
-                    self.last_t = t;
-                    match value {
-                        Some(v) => self.log.event(
-                            t,
-                            "calibration",
-                            Some(what),
-                            &[("result", Detail::Text(result)), ("value", Detail::Num(v))],
-                        ),
-                        None => self.log.event(
-                            t,
-                            "calibration",
-                            Some(what),
-                            &[("result", Detail::Text(result))],
-                        ),
-                    }
-                }
-                LogItem::Event {
-                    t,
-                    kind,
-                    why,
-                    count,
-                } => {
-                    self.last_t = t;
-                    match count {
-                        Some(c) => self.log.event(t, kind, why, &[("count", Detail::Int(c))]),
-                        None => self.log.event(t, kind, why, &[]),
-                    }
-                }
+            if let Some(t) = self.log.write_item(&item) {
+                self.last_t = t;
             }
             self.supervise();
         }
@@ -1205,13 +1079,9 @@ impl Writer {
             self.watch.progress(work, t1);
         }
         let stall_ms = t1.saturating_sub(t0);
-        let due = (stall_ms as f32 * self.adc_rate_hz / 1000.0) as u32;
         let read = SAMPLES.load(Ordering::Relaxed).wrapping_sub(read0);
-        // Each count is ±1 sample at its ends: a difference of 2 is no loss.
-        let lost = due.saturating_sub(read);
-        if lost > 2 {
-            FLASH_LOST.fetch_add(lost, Ordering::Relaxed);
-        }
+        let lost = settings_store::samples_lost(stall_ms, self.adc_rate_hz, read);
+        FLASH_LOST.fetch_add(lost, Ordering::Relaxed);
         let t = self.last_t;
         let stall = (
             "stall_ms",
@@ -1676,7 +1546,7 @@ mod app {
                     window_samples: SAMPLES.load(Ordering::Relaxed),
                     window_errors: FRAME_ERRORS.load(Ordering::Relaxed),
                     bus_stats,
-                    reported: [0; 5],
+                    reported: Overruns::new(),
                     log_overruns: 0,
                     saves: saves_in,
                 },
@@ -1774,9 +1644,11 @@ mod app {
         let (mut sampler, mut view) = (cx.shared.sampler, cx.shared.view);
         loop {
             // An IMU record once the samples queued before it are taken (or none wait).
-            let due = w.records.peek().is_some_and(|r| {
-                w.taken.wrapping_sub(r.queued) < u32::MAX / 2 || !w.samples.ready()
-            });
+            let waiting = w.samples.ready();
+            let due = w
+                .records
+                .peek()
+                .is_some_and(|r| schedule::imu_record_due(w.taken, r.queued, waiting));
             if due {
                 if let Some(r) = w.records.dequeue() {
                     w.on_tick(r, &mut sampler, &mut view);

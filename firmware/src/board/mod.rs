@@ -6,13 +6,15 @@
 //! ([`health`]), gain ranging applied and logged ([`gain`]), the guidance tones ([`sound`]) and the session log on the microSD card
 //! ([`sd_log`]) with the device events a replay needs ([`board_log`]), the settings stored in flash
 //! ([`settings`], kept safe against power cuts by [`settings_store`]) and the two-button menu that edits them ([`menu`])
-//! with its calibration procedures ([`procedure`]).
+//! with its calibration procedures ([`procedure`]). The board binary's tasks hand records to the
+//! log writer as [`log_item`]s and screens to the display task as [`view`]s.
 
 pub mod board_log;
 pub mod crash;
 pub mod gain;
 pub mod health;
 pub mod i2c_bus;
+pub mod log_item;
 pub mod menu;
 pub mod pins;
 pub mod procedure;
@@ -22,6 +24,7 @@ pub mod sd_log;
 pub mod settings;
 pub mod settings_store;
 pub mod sound;
+pub mod view;
 pub mod watchdog;
 
 pub use profile::{

@@ -710,6 +710,14 @@ pub fn margin(
     Some(lo)
 }
 
+/// The processing task's order: an IMU record stamped with `queued` (the DRDY task's
+/// running count of samples queued when the IMU was read) is due once the task has
+/// taken that many samples (`taken`; both counts wrap), or when no sample waits (the ADC
+/// stalled), so samples and IMU records reach the application in time order.
+pub fn imu_record_due(taken: u32, queued: u32, samples_waiting: bool) -> bool {
+    taken.wrapping_sub(queued) < u32::MAX / 2 || !samples_waiting
+}
+
 #[cfg(test)]
 #[path = "schedule_tests.rs"]
 mod tests;

@@ -316,3 +316,16 @@ fn a_slow_card_fills_only_the_log_queue() {
     // The queue was full when records were refused.
     assert_eq!(o.max_log_items, LOG_QUEUE);
 }
+
+#[test]
+fn an_imu_record_waits_for_the_samples_queued_before_it() {
+    // Read after 80 samples were queued: due once 80 are taken.
+    assert!(!imu_record_due(79, 80, true));
+    assert!(imu_record_due(80, 80, true));
+    assert!(imu_record_due(81, 80, true));
+    // No sample waits (the ADC stalled): due at once.
+    assert!(imu_record_due(10, 80, false));
+    // Across the counts' wrap.
+    assert!(!imu_record_due(u32::MAX - 2, 5, true));
+    assert!(imu_record_due(6, u32::MAX - 2, true));
+}

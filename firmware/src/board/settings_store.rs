@@ -299,6 +299,15 @@ pub fn save<F: NorFlash>(
     Err(StoreError::Verify)
 }
 
+/// ADC samples a save cost: those its `stall_ms` should have brought at `rate_hz` minus
+/// the `read` ones the DRDY task got meanwhile; a difference of up to 2 is the counts'
+/// own ±1 at each end, not a loss (0 then).
+pub fn samples_lost(stall_ms: u64, rate_hz: f32, read: u32) -> u32 {
+    let due = (stall_ms as f32 * rate_hz / 1000.0) as u32;
+    let lost = due.saturating_sub(read);
+    if lost > 2 { lost } else { 0 }
+}
+
 #[cfg(test)]
 #[path = "settings_store_tests.rs"]
 mod tests;

@@ -392,3 +392,14 @@ fn the_board_area_is_sector_11() {
     // 144-byte blocks stay aligned to the flash's 16-byte rows and 4-byte words.
     assert!(SETTINGS_LEN.is_multiple_of(16));
 }
+
+#[test]
+fn a_stalled_save_counts_the_samples_it_cost() {
+    // A 2 ms program with the DRDY task stalled throughout: 16 samples at 8 kSPS.
+    assert_eq!(samples_lost(2, 8000.0, 0), 16);
+    // The same time with every sample read (the interrupt ran from the cache): none.
+    assert_eq!(samples_lost(2, 8000.0, 15), 0);
+    // A 1.8 s erase: 14 400 due, 3 read around it.
+    assert_eq!(samples_lost(1800, 8000.0, 3), 14_397);
+    assert_eq!(samples_lost(0, 8000.0, 0), 0);
+}

@@ -284,6 +284,10 @@ pub struct GuidanceInput {
     pub walked_m: f32,
     /// Device yaw at the pulse (rad, from north toward west).
     pub yaw: f32,
+    /// Variance of that yaw (rad², the attitude filter's): without a magnetometer the
+    /// heading is not known and the belief cannot be walked to (see [`heading_supports`]);
+    /// not finite: unknown.
+    pub yaw_var: f32,
     /// The estimator's belief after this pulse.
     pub estimate: Option<VictimEstimate>,
     /// The estimator rebuilt its mixture on this pulse: forget the latched target.
@@ -451,11 +455,23 @@ impl Guidance {
             let dist_h = libm::sqrtf(e.p.x * e.p.x + e.p.y * e.p.y);
             // IROS §III-C: trust the mean once the receiver is far from it in Mahalanobis
             // distance and the belief is concentrated.
+            let heading = heading_supports(input.yaw_var, self.cfg.go_to_mean_d2);
             if !self.localized
+                && heading
                 && horizontal_mahalanobis2(e) >= self.cfg.go_to_mean_d2
                 && sigma_h <= self.cfg.concentrated_ratio * dist_h
             {
                 self.localized = true;
+            }
+            // The heading lost since (the magnetometer gone for long): the arrow to the
+            // mean is no longer supported; back to the flux line, which needs no heading.
+            // A probe under way stays: at the mean the heading moves nothing.
+            if self.localized && !heading && !self.probing {
+                self.localized = false;
+                self.probe_count = 0;
+                self.over_mean = 0;
+                self.far_pulses = 0;
+                self.bracket_dir = None;
             }
         }
         let height = input.height_m.filter(|h| h.is_finite());
@@ -810,6 +826,27 @@ pub fn horizontal_mahalanobis2(est: &VictimEstimate) -> f32 {
     let (x, y) = (est.p.x, est.p.y);
     let m = (d * x * x - 2.0 * b * x * y + a * y * y) / det;
     if m.is_finite() { m } else { 0.0 }
+}
+
+/// Whether a heading known to within the variance `yaw_var` (rad²) can support sending the
+/// rescuer to a belief's mean at all (issue 22: "when the inputs cannot support a belief
+/// ... the status is not localized"). The belief is in `G_k`, north-aligned; a heading
+/// error δψ ~ N(0, σψ²) turns all of it about the receiver, `p → Rz(δψ) p`, and the arrow
+/// with it. Along `p` that adds the second moment `a |p_h|²`, `a = E[(cos δψ − 1)²] =
+/// 3/2 − 2 e^(−σψ²/2) + e^(−2σψ²)/2`, so the squared Mahalanobis distance of the receiver
+/// (IROS 2006 §III-C, eq. 18) is at most `1 / a` whatever the filter's own covariance and
+/// the distance: the test `go_to_mean_d2 · a < 1` is necessary for the go-to-mean rule
+/// once the heading's share is counted (σψ < 39° for `go_to_mean_d2` = 9). With a
+/// magnetometer σψ is a few degrees and this never binds; without one σψ stays ≥ π and
+/// the arrow to the mean was measured 30–68° off on 5 of the 14 validation logs while
+/// "localized" (`docs/session-log.md`). Not finite: unknown, no.
+pub fn heading_supports(yaw_var: f32, go_to_mean_d2: f32) -> bool {
+    if yaw_var.is_nan() || yaw_var == f32::INFINITY {
+        return false;
+    }
+    let v = yaw_var.max(0.0);
+    let a = 1.5 - 2.0 * libm::expf(-0.5 * v) + 0.5 * libm::expf(-2.0 * v);
+    go_to_mean_d2 * a < 1.0
 }
 
 /// Unit principal axis (horizontal, `G`) and largest standard deviation (m) of the

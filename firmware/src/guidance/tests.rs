@@ -22,6 +22,7 @@ fn input(h: Vec3, walked: f32, yaw: f32, e: Option<VictimEstimate>) -> GuidanceI
         h_g: Some(h),
         walked_m: walked,
         yaw,
+        yaw_var: 0.0,
         estimate: e,
         reinitialized: false,
         signal_lost: false,
@@ -145,6 +146,7 @@ fn a_vertical_field_keeps_the_heading_and_no_pulse_gives_no_signal() {
         h_g: None,
         walked_m: 0.0,
         yaw: 0.0,
+        yaw_var: 0.0,
         estimate: None,
         reinitialized: false,
         signal_lost: false,
@@ -490,6 +492,43 @@ fn angles_and_helpers() {
     assert!((s - 1.5f32.sqrt()).abs() < 1e-5);
     assert!((axis[0] - axis[1]).abs() < 1e-5);
     assert!(flux_direction(&Vec3::new(0.0, 0.0, 1.0), &[1.0, 0.0]).is_none());
+}
+
+#[test]
+fn without_a_heading_the_belief_is_not_walked_to() {
+    // The bound: 9 · a(σψ²) = 1 at σψ = 0.680 rad (39.0°) for go_to_mean_d2 = 9.
+    assert!(heading_supports(2f32.to_radians().powi(2), 9.0));
+    assert!(heading_supports(0.67f32.powi(2), 9.0));
+    assert!(!heading_supports(0.69f32.powi(2), 9.0));
+    assert!(!heading_supports(PI * PI, 9.0));
+    assert!(!heading_supports(f32::NAN, 9.0));
+    assert!(!heading_supports(f32::INFINITY, 9.0));
+    assert!(heading_supports(-1.0, 9.0));
+    let cfg = GuidanceConfig::default();
+    let h = Vec3::new(1e-4, 0.0, 0.0);
+    let far = Some(est(Vec3::new(30.0, 0.0, -2.0), 2.0));
+    let unknown = |e: Option<VictimEstimate>| GuidanceInput {
+        yaw_var: PI * PI,
+        ..input(h, 1.0, 0.0, e)
+    };
+    // A concentrated belief 30 m away (localized with a heading, see `localized`): the
+    // flux line without one, no distance shown.
+    let mut g = Guidance::new(cfg);
+    let o = g.update(&unknown(far));
+    assert_eq!(o.status, Status::FluxLine);
+    assert!(o.distance_m.is_none() && !g.is_localized());
+    // Localized, then the heading lost: back to the flux line, and localized again once
+    // the heading is back.
+    let mut g = localized(cfg);
+    assert_eq!(g.update(&unknown(far)).status, Status::FluxLine);
+    assert!(!g.is_localized());
+    assert_eq!(g.update(&input(h, 1.0, 0.0, far)).status, Status::Localized);
+    // A probe under way stays: at the mean the heading moves nothing.
+    let mut g = localized(cfg);
+    let over = Some(est(Vec3::new(0.05, 0.0, -3.0), 0.05));
+    let _ = g.update(&input(h, 0.0, 0.0, over));
+    assert_eq!(g.update(&input(h, 0.0, 0.0, over)).status, Status::Probe);
+    assert_eq!(g.update(&unknown(over)).status, Status::Probe);
 }
 
 fn at_height(e: VictimEstimate, height: Option<f32>) -> GuidanceInput {
