@@ -16,7 +16,8 @@
 //! | mark button (push button to ground, internal pull-up; polled at 100 Hz, debounced) | GPIO | PC6 (D6) |
 //! | fault LED (the Feather's red LED): lit while a sensor fault holds or the display is down | GPIO | PC1 (D13) |
 //! | buzzer (passive piezo): guidance tones ([`firmware::board::sound`]) | TIM4 CH3 PWM | PB8 (D9) |
-//! | sound button (push button to ground, internal pull-up; debounced): mute / unmute, a chirp confirms "on" | GPIO | PC2 (D12) |
+//! | sound button (push button to ground, internal pull-up; debounced): short = mute / unmute (a chirp confirms "on"), long = the menu ([`firmware::board::controls`]) | GPIO | PC2 (D12) |
+//! | settings (append-only slots, [`firmware::board::settings_store`]), written by the idle loop when the menu closes with a change | flash sector 11 | – |
 //! | battery voltage (the Feather's ½ divider on BAT, read once a second) | ADC1 IN3 | PA3 (on board) |
 //! | supervision: independent watchdog (1 s), cycle counter (progress times) | IWDG, DWT | – |
 //!
@@ -26,7 +27,8 @@
 //!
 //! Supervision: the IWDG is fed only while the main loop's work progresses
 //! ([`firmware::board::watchdog`]: the sample queue drained within 1 s, a timer tick
-//! handled within 0.5 s); a panic stores its message in no-init RAM and resets, and a
+//! handled within 0.5 s; its period is 8 s while a settings save stalls the flash, and
+//! the samples lost are logged); a panic stores its message in no-init RAM and resets, and a
 //! starved watchdog stores the stalled work first ([`firmware::board::crash`]); the next
 //! boot logs the record and shows it on the display for 3 s. The I2C bus is cleared at
 //! boot (a slave may still hold SDA from a transfer the reset cut), checked before every
