@@ -5,9 +5,11 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use firmware::drivers::imu::{ACC_LSB_M_S2, GYR_LSB_RAD_S, MAG_LSB_UT};
+use hal_sim::io::replay::{StreamOptions, replay_stream};
 use hal_sim::io::session::Record;
 use hal_sim::sensors::bus::run::{compare_pulses, simulate_bus_default};
 use hal_sim::world::scenario::{Preset, ScenarioConfig};
+use std::io::Cursor;
 
 fn config(preset: Preset, seed: u64, victims: usize, max_s: f64) -> ScenarioConfig {
     let mut c = ScenarioConfig::new(preset, seed);
@@ -229,4 +231,95 @@ fn bus_level_never_reports_a_wrong_vector_under_overlaps() {
         overlapped_strong, 0,
         "a vector under a comparable interferer"
     );
+}
+
+/// Issue 22 item 3: the bus level writes the board's `gain` events. A search that ends
+/// close over a strong transmitter ranges the gain down; every change the DSP asked for
+/// is in the log as the board writes it (`BoardLog::gain`, `seq` in file order among the
+/// records), and the strict streaming replay reads the log with no malformed line, no
+/// `seq` gap and no warning, counts every event and answers every pulse.
+#[test]
+fn a_bus_level_run_that_ranges_writes_gain_events_that_replay_strictly() {
+    // The standard's strongest transmitter, shallow, the search starting 15 m away.
+    let mut cfg = config(Preset::Paper, 3, 1, 60.0);
+    cfg.transmitter.moment_range = [3e-2, 3e-2];
+    cfg.depth_m = [0.5, 0.5];
+    cfg.start_distance_m = [15.0, 15.0];
+    let run = simulate_bus_default(&cfg).unwrap();
+    let n = run.gain_events.len();
+    let text = String::from_utf8(run.sim.session_bytes()).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    let gain: Vec<&str> = lines
+        .iter()
+        .copied()
+        .filter(|l| l.contains(r#""type":"event","#) && l.contains(r#""kind":"gain""#))
+        .collect();
+    println!(
+        "paper/3 close by, {:.0} s: {} lines, {} pulses, {n} gain events, DSP {:?}",
+        run.sim.draw.duration_s,
+        lines.len(),
+        run.sim.session.pulses().count(),
+        run.frontend
+    );
+    for l in &gain {
+        println!("{l}");
+    }
+    assert!(n >= 2, "the run ranges: {n} changes");
+    assert_eq!(gain.len(), n);
+    assert_eq!(run.range_changes.len(), n);
+    assert_eq!(run.frontend.range_changes as usize, n);
+    // The emulated chips take every write; the first change leaves the most sensitive
+    // setting because the field grew, and each change starts where the last one ended.
+    assert!(run.gain_events.iter().all(|e| e.applied));
+    assert!(
+        gain[0].contains(r#""from_range":"high","from_pga":128"#),
+        "{}",
+        gain[0]
+    );
+    assert!(
+        run.gain_events
+            .windows(2)
+            .all(|w| w[0].change.to == w[1].change.from && w[0].t_us < w[1].t_us)
+    );
+    // Numbered in file order; each event written when its setting took effect: after the
+    // IMU samples up to its t, before the later ones.
+    let mut imu_before = f64::NEG_INFINITY;
+    let mut waiting: Vec<f64> = Vec::new();
+    for (k, l) in lines[1..].iter().enumerate() {
+        assert!(l.starts_with(&format!("{{\"seq\":{k},\"type\":")), "{l}");
+        let v: serde_json::Value = serde_json::from_str(l).unwrap();
+        let t = v["t"].as_f64().unwrap();
+        if v["type"] == "event" {
+            assert!(imu_before <= t, "{l} after the IMU sample of {imu_before}");
+            waiting.push(t);
+        } else if v["type"] == "imu" {
+            assert!(
+                waiting.iter().all(|&e| e < t),
+                "{l} after events {waiting:?}"
+            );
+            waiting.clear();
+            imu_before = t;
+        }
+    }
+
+    let mut out = Vec::new();
+    let mut warnings = Vec::new();
+    let summary = replay_stream(
+        Cursor::new(text.as_bytes()),
+        &run.sim.receiver,
+        &mut out,
+        StreamOptions {
+            strict: true,
+            live: false,
+        },
+        |w| warnings.push(w.to_string()),
+        |_| {},
+    )
+    .unwrap();
+    assert!(warnings.is_empty(), "{warnings:?}");
+    let read = summary.read;
+    assert_eq!((read.segments, read.malformed, read.seq_gaps), (1, 0, 0));
+    let pulses = run.sim.session.pulses().count() as u64;
+    assert_eq!((read.pulses, read.events), (pulses, n as u64));
+    assert_eq!(summary.lines, pulses);
 }

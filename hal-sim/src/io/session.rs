@@ -7,6 +7,7 @@
 //! keys in the order of the spec, so parsing a log this crate wrote and writing it again
 //! gives the same bytes.
 use serde::{Deserialize, Serialize};
+use std::collections::VecDeque;
 use std::io::{BufRead, Write};
 use std::path::Path;
 
@@ -326,26 +327,21 @@ fn write_line(out: &mut impl Write, v: &Tagged<'_>) -> std::io::Result<()> {
 
 /// Writes `session` as a receiver writes it (the spec's writer rules): each pulse record
 /// when its front end finished it — `written_t[k]` for the k-th pulse, at or after its
-/// own `t`, i.e. after the records up to then — instead of sorted by `t`, and every
-/// record after the header numbered by `seq` (0, 1, …) in file order. Records other than
-/// pulses keep their `t` order; events are not written (a simulation has none).
+/// own `t`, i.e. after the records up to then — instead of sorted by `t`; each of the
+/// device's `events` (`t` in s, and the line as the device's writer wrote it, without
+/// `seq`, in `t` order) when it happened, after the records before its `t`; every record
+/// after the header numbered by `seq` (0, 1, …) in file order. Other records keep their
+/// `t` order; `session.events` are not written (a simulation has none).
 pub fn write_as_written(
     session: &Session,
     written_t: &[f64],
+    events: &[(f64, String)],
     out: &mut impl Write,
 ) -> std::io::Result<()> {
     write_line(out, &Tagged::Header(&session.header))?;
     let mut seq = 0u64;
-    let mut put = |out: &mut dyn Write, r: &Record| -> std::io::Result<()> {
-        let mut line = Vec::new();
-        write_record(&mut line, r)?;
-        // `{"type":…` → `{"seq":n,"type":…`
-        out.write_all(format!("{{\"seq\":{seq},").as_bytes())?;
-        out.write_all(line.get(1..).unwrap_or_default())?;
-        seq += 1;
-        Ok(())
-    };
-    let mut held: std::collections::VecDeque<(f64, &Record)> = Default::default();
+    let mut held: VecDeque<(f64, &Record)> = VecDeque::new();
+    let mut events = events.iter().peekable();
     let mut k = 0;
     for r in &session.records {
         if let Record::Pulse(p) = r {
@@ -354,16 +350,51 @@ pub fn write_as_written(
             held.push_back((w, r));
             continue;
         }
-        while let Some((_, p)) = held.front().filter(|(w, _)| *w <= r.t()).copied() {
-            put(out, p)?;
-            held.pop_front();
-        }
-        put(out, r)?;
+        flush_written(out, &mut seq, &mut held, &mut events, r.t())?;
+        put_record(out, &mut seq, r)?;
     }
-    for (_, p) in held {
-        put(out, p)?;
-    }
+    flush_written(out, &mut seq, &mut held, &mut events, f64::INFINITY)
+}
+
+/// Writes one line (`{"type":…`) as `{"seq":n,"type":…` and counts it.
+fn put_numbered(out: &mut impl Write, seq: &mut u64, line: &[u8]) -> std::io::Result<()> {
+    out.write_all(format!("{{\"seq\":{seq},").as_bytes())?;
+    out.write_all(line.get(1..).unwrap_or_default())?;
+    *seq += 1;
     Ok(())
+}
+
+fn put_record(out: &mut impl Write, seq: &mut u64, r: &Record) -> std::io::Result<()> {
+    let mut line = Vec::new();
+    write_record(&mut line, r)?;
+    put_numbered(out, seq, &line)
+}
+
+/// Writes, in time order, the held pulses written by `until` and the events before it.
+fn flush_written<'a>(
+    out: &mut impl Write,
+    seq: &mut u64,
+    held: &mut VecDeque<(f64, &Record)>,
+    events: &mut std::iter::Peekable<impl Iterator<Item = &'a (f64, String)>>,
+    until: f64,
+) -> std::io::Result<()> {
+    loop {
+        let p = held.front().map(|(w, _)| *w).filter(|w| *w <= until);
+        let e = events.peek().map(|(t, _)| *t).filter(|t| *t < until);
+        let event_first = match (p, e) {
+            (Some(w), Some(te)) => te < w,
+            (Some(_), None) => false,
+            (None, Some(_)) => true,
+            (None, None) => return Ok(()),
+        };
+        if event_first {
+            if let Some((_, line)) = events.next() {
+                put_numbered(out, seq, format!("{line}\n").as_bytes())?;
+            }
+        } else if let Some((_, r)) = held.pop_front() {
+            put_record(out, seq, r)?;
+        }
+    }
 }
 
 /// Reads a whole single-segment session log from a file (see [`read`]).

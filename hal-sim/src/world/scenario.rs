@@ -147,6 +147,10 @@ pub struct Simulation {
     /// written in a receiver's order with `seq` ([`crate::io::session::write_as_written`]);
     /// `None`: sorted by `t` (the measurement level).
     pub pulse_written_t: Option<Vec<f64>>,
+    /// The device's event records (the bus level's `gain` events): `t` (s) and the line as
+    /// the board's writer wrote it, without `seq`; written among the records by `t` when
+    /// [`Simulation::pulse_written_t`] is given.
+    pub device_events: Vec<(f64, String)>,
 }
 
 /// Independent random streams of one seed (shared with the bus level so both levels
@@ -338,6 +342,7 @@ pub fn simulate(cfg: &ScenarioConfig) -> Simulation {
         truth,
         receiver,
         pulse_written_t: None,
+        device_events: Vec::new(),
     }
 }
 
@@ -361,7 +366,9 @@ impl Simulation {
     pub fn session_bytes(&self) -> Vec<u8> {
         let mut v = Vec::new();
         let _ = match &self.pulse_written_t {
-            Some(w) => crate::io::session::write_as_written(&self.session, w, &mut v),
+            Some(w) => {
+                crate::io::session::write_as_written(&self.session, w, &self.device_events, &mut v)
+            }
             None => self.session.write(&mut v),
         };
         v

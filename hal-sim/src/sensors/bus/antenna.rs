@@ -2,13 +2,15 @@
 //! input noise) and IF range switch, the firmware's driver and pulse DSP, and the glue the
 //! board binary has between them — every conversion pushed to the DSP, every
 //! [`RangeChange`] the DSP asks for applied (one `GAIN1` write for the three coils, the
-//! range switch's GPIO) before the next conversion is read.
+//! range switch's GPIO) before the next conversion is read, through the board's own
+//! [`firmware::board::gain::apply_change`] (which also stamps the log's `gain` event).
 use super::ads131m04::{Ads131m04Drdy, Ads131m04Spi, ads131m04};
 use super::if_signal::{AnalogInput, RangeSwitch};
 use super::{NoDelay, SimClock};
 use anyhow::{Result, anyhow};
 use embedded_hal::digital::OutputPin;
 use firmware::board::REFERENCE;
+use firmware::board::gain::{GainEvent, apply_change};
 use firmware::drivers::ads131m04::{Ads131m04, Config, Error as AdcError};
 use firmware::frontend::{Frontend, FrontendConfig, IfRange, Pulse, Range, RangeChange};
 
@@ -26,6 +28,8 @@ pub struct Antenna<A: AnalogInput> {
     pub frontend: Frontend,
     /// Every change of the analog setting, in order.
     pub changes: Vec<RangeChange>,
+    /// The same changes as the board applies and logs them (`gain` events), in order.
+    pub gain_events: Vec<GainEvent>,
     /// Conversions read.
     pub samples: u64,
 }
@@ -76,6 +80,7 @@ impl<A: AnalogInput> Antenna<A> {
             switch,
             frontend,
             changes: Vec::new(),
+            gain_events: Vec::new(),
             samples: 0,
         })
     }
@@ -95,9 +100,28 @@ impl<A: AnalogInput> Antenna<A> {
                 .frontend
                 .push([v[0], v[1], v[2]], frame.coils_saturated())
                 .map_err(|e| anyhow!("frontend: {e:?}"))?;
-            if let Some(c) = self.frontend.take_range_change() {
-                apply_range(&mut self.adc, &mut self.switch, c.to)?;
-                self.changes.push(c);
+            // The board's glue: the change applied before the next conversion is read.
+            // No conversion waits in a queue here (each is pushed as it is read), and no
+            // time is lost (offset 0). A failed write on an emulated chip is a simulator
+            // fault, not a board condition to emulate: it stops the run.
+            let rate_hz = self.frontend.config().sample_rate_hz;
+            let mut failed = None;
+            let (adc, switch) = (&mut self.adc, &mut self.switch);
+            let applied = apply_change(&mut self.frontend, 0, rate_hz, 0, |c| {
+                match apply_range(adc, switch, c.to) {
+                    Ok(()) => true,
+                    Err(e) => {
+                        failed = Some(e);
+                        false
+                    }
+                }
+            });
+            if let Some(e) = failed {
+                return Err(e);
+            }
+            if let Some(e) = applied {
+                self.changes.push(e.change);
+                self.gain_events.push(e);
             }
             if let Some(p) = p {
                 on_pulse(p);

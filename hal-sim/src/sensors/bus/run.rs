@@ -10,7 +10,10 @@
 //!   saturated or truncated pulses give none), `t` = the DSP's pulse centre, `src` = the
 //!   DSP's transmitter tracker when the world has several transmitters. The DSP reports
 //!   each vector with its largest component positive, so the log is always
-//!   sign-ambiguous.
+//!   sign-ambiguous;
+//! - `event` of kind `gain`: each change of the analog setting the DSP asked for, applied
+//!   by the board's [`firmware::board::gain::apply_change`] and written by the board's
+//!   [`BoardLog::gain`] (the same text as on the card), among the records by its `t`.
 use super::antenna::Antenna;
 use super::if_signal::{IfSignal, RangeSwitch};
 use super::imu::{ImuBus, ImuSampler};
@@ -22,7 +25,11 @@ use crate::world::physics::V3;
 use crate::world::scenario::{ScenarioConfig, Simulation, merge, simulate};
 use anyhow::{Context, Result, anyhow};
 use firmware::board::REFERENCE;
+use firmware::board::board_log::BoardLog;
+use firmware::board::gain::GainEvent;
+use firmware::board::sd_log::{RamCard, SdSink};
 use firmware::frontend::{Calibration, FrontendStats, RangeChange};
+use firmware::timebase::Instant;
 
 /// Seed stream of the measurement-level IMU noise (see `scenario::simulate`).
 const IMU_STREAM: u64 = 2;
@@ -78,6 +85,8 @@ pub struct BusRun {
     pub adc_samples: u64,
     /// The DSP's changes of the analog setting (gain ranging), in order.
     pub range_changes: Vec<RangeChange>,
+    /// The same changes as the board applied and logged them.
+    pub gain_events: Vec<GainEvent>,
     /// I2C transactions with the IMU chips.
     pub i2c_transactions: u64,
 }
@@ -160,6 +169,7 @@ pub fn simulate_bus(cfg: &ScenarioConfig, unit: &Unit, cal: &Calibration) -> Res
     let frontend = antenna.frontend.stats();
     let adc_samples = antenna.samples;
     let range_changes = std::mem::take(&mut antenna.changes);
+    let gain_events = std::mem::take(&mut antenna.gain_events);
     drop(antenna);
 
     let truth = world.truth_records(cfg.truth_hz, duration, pulses.iter().map(|p| p.t), |t| t);
@@ -168,6 +178,7 @@ pub fn simulate_bus(cfg: &ScenarioConfig, unit: &Unit, cal: &Calibration) -> Res
     sim.session = Session::new(header.clone());
     sim.session.records = merge(imu_records, pulses);
     sim.pulse_written_t = Some(written_t);
+    sim.device_events = gain_lines(&gain_events)?;
     sim.truth = Session::new(header);
     sim.truth.records = truth;
     sim.receiver.sign_ambiguous = true;
@@ -177,8 +188,43 @@ pub fn simulate_bus(cfg: &ScenarioConfig, unit: &Unit, cal: &Calibration) -> Res
         frontend,
         adc_samples,
         range_changes,
+        gain_events,
         i2c_transactions,
     })
+}
+
+/// The `gain` event records of `events` as the board writes them ([`BoardLog::gain`]),
+/// each with its `t` (s) and without its `seq` (the session log numbers every record in
+/// file order, `seq` first: [`crate::io::session::write_as_written`]); the rest of the
+/// line is the board's text.
+fn gain_lines(events: &[GainEvent]) -> Result<Vec<(f64, String)>> {
+    // No card: the UART stream alone carries the records.
+    let mut log: BoardLog<RamCard<'static>, String> =
+        BoardLog::new(SdSink::new(None), Some(String::new()));
+    for e in events {
+        log.gain(e);
+    }
+    let text = log.uart().cloned().unwrap_or_default();
+    let lines: Vec<&str> = text.lines().collect();
+    if lines.len() != events.len() {
+        return Err(anyhow!(
+            "the board's log wrote {} lines for {} gain events",
+            lines.len(),
+            events.len()
+        ));
+    }
+    lines
+        .iter()
+        .zip(events)
+        .enumerate()
+        .map(|(k, (l, e))| {
+            // The board's writer puts `seq` last.
+            let rest = l
+                .strip_suffix(&format!(",\"seq\":{k}}}"))
+                .ok_or_else(|| anyhow!("gain event line without seq {k}: {l}"))?;
+            Ok((Instant::from_micros(e.t_us).secs_f64(), format!("{rest}}}")))
+        })
+        .collect()
 }
 
 /// One measurement-level pulse and the bus-level pulse matched to it.
