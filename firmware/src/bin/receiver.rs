@@ -16,7 +16,8 @@
 //! | mark button (push button to ground, internal pull-up; polled at 100 Hz, debounced) | GPIO | PC6 (D6) |
 //! | fault LED (the Feather's red LED): lit while a sensor fault holds or the display is down | GPIO | PC1 (D13) |
 //! | buzzer (passive piezo): guidance tones ([`firmware::board::sound`]) | TIM4 CH3 PWM | PB8 (D9) |
-//! | sound button (push button to ground, internal pull-up; debounced): mute / unmute, a chirp confirms "on" | GPIO | PC2 (D12) |
+//! | sound button (push button to ground, internal pull-up; debounced): short = mute / unmute (a chirp confirms "on"), long = the menu ([`firmware::board::controls`]) | GPIO | PC2 (D12) |
+//! | settings (append-only slots, [`firmware::board::settings_store`]), written by the idle loop when the menu closes with a change | flash sector 11 | – |
 //! | battery voltage (the Feather's ½ divider on BAT, read once a second) | ADC1 IN3 | PA3 (on board) |
 //! | supervision: independent watchdog (1 s), cycle counter (progress times) | IWDG, DWT | – |
 //!
@@ -26,7 +27,8 @@
 //!
 //! Supervision: the IWDG is fed only while the main loop's work progresses
 //! ([`firmware::board::watchdog`]: the sample queue drained within 1 s, a timer tick
-//! handled within 0.5 s); a panic stores its message in no-init RAM and resets, and a
+//! handled within 0.5 s; its period is 8 s while a settings save stalls the flash, and
+//! the samples lost are logged); a panic stores its message in no-init RAM and resets, and a
 //! starved watchdog stores the stalled work first ([`firmware::board::crash`]); the next
 //! boot logs the record and shows it on the display for 3 s. The I2C bus is cleared at
 //! boot (a slave may still hold SDA from a transfer the reset cut), checked before every
@@ -76,20 +78,19 @@ use embedded_hal::delay::DelayNs;
 use embedded_hal_bus::spi::ExclusiveDevice;
 use firmware::app::{AppConfig, AppError, DisplayModel, Receiver};
 use firmware::board::board_log::BoardLog;
+use firmware::board::controls::{Closed, Controls, Response};
 use firmware::board::crash::{self, CrashKind, CrashRecord, LastReset};
 use firmware::board::gain;
 use firmware::board::health::{self, Battery, Fault, SensorHealth};
 use firmware::board::i2c_bus::{self, ClearError, Cleared, Guarded, Recoverable};
 use firmware::board::log_item::{LogItem, Overruns};
-use firmware::board::menu::{Menu, MenuEvent, Press, PressDetector, Procedure};
-use firmware::board::procedure::{self, Outcome, Running};
 use firmware::board::schedule::{
     self, IMU_QUEUE, LOG_QUEUE, PRIO_DISPLAY, PRIO_DRDY, PRIO_IMU, PRIO_PROCESS,
 };
 use firmware::board::sd_log::SdState;
-use firmware::board::settings::{self, Settings};
+use firmware::board::settings::Settings;
 use firmware::board::settings_store::{self, BOARD_AREA};
-use firmware::board::sound::{self, SoundInput};
+use firmware::board::sound;
 use firmware::board::view::{self, View};
 use firmware::board::watchdog::{MonotonicMs, ProgressWatch, TickMisses, Verdict, Work};
 use firmware::board::{self, BoardProfile, pins};
@@ -97,7 +98,6 @@ use firmware::drivers::ads131m04::Ads131m04;
 use firmware::drivers::imu::{Imu, ImuReading};
 use firmware::frontend::{Frontend, IfRange, PulseMeasurement, RangeChange};
 use firmware::motion::MagCalibration;
-use firmware::session_log::Detail;
 use firmware::timebase::{ClockEvent, Instant, SampleClock, pulse_centre_us};
 use firmware::victims::MarkButton;
 use heapless::spsc::{Consumer, Producer, Queue};
@@ -542,19 +542,10 @@ pub struct Proc {
     if_range: PC3<Output>,
     mark: MarkButton<PC6<Input>>,
     sound_pin: PC2<Input>,
-    sound_low: u8,
-    press: PressDetector,
-    menu: Menu,
-    muted: bool,
-    chirp_until_ms: u64,
+    /// The buttons, the menu, its procedures and the tone (`board::controls`).
+    controls: Controls,
     /// The tone playing and its duty.
     playing: Option<(u32, u16)>,
-    /// A menu procedure running, or the outcome shown until the next press.
-    procedure: Option<Running>,
-    outcome: Option<Outcome>,
-    /// The settings the receiver was built with (a change of mode, region or step length
-    /// in the menu rebuilds it).
-    applied: Settings,
     buzz_timer: PwmHzManager<pac::TIM4>,
     buzzer: PwmChannel<pac::TIM4, 2>,
     mag_cal: Option<MagCalibration>,
@@ -620,14 +611,11 @@ impl Proc {
             model: self.shown,
             fault: self.fault,
             battery: self.battery.state(),
-            menu: self.menu.item().map(|_| self.menu),
-            procedure: self.procedure.as_ref().map(|r| {
-                (
-                    r.procedure(),
-                    r.progress(self.receiver.motion().total_steps()),
-                )
-            }),
-            outcome: self.outcome,
+            menu: self.controls.open_menu(),
+            procedure: self
+                .controls
+                .procedure(self.receiver.motion().total_steps()),
+            outcome: self.controls.outcome(),
         };
         view.lock(|slot| *slot = Some(v));
         rtic::pend(pac::Interrupt::USART2);
@@ -699,30 +687,15 @@ impl Proc {
             self.window_ticks = 0;
             self.second();
         }
-        let mut redraw = self.buttons();
-        // The mark button, polled at the tick (debounced over 3 ticks); in the menu it
-        // leaves the menu.
-        let marked = self.mark.poll();
-        if marked && self.outcome.is_some() {
-            // The outcome was read: back to the menu.
-            self.outcome = None;
-            redraw = true;
-        } else if marked && self.procedure.is_some() {
-            self.finish_procedure();
-            redraw = true;
-        } else if marked && self.menu.item().is_some() {
-            if let Some(MenuEvent::Closed { changed }) = self.menu.mark_button() {
-                self.close_menu(changed);
-            }
-            redraw = true;
-        } else if marked {
-            self.event("mark", None, None);
-            match self.receiver.mark() {
-                Ok(n) => defmt::info!("victim {=u8} marked", n),
-                Err(_) => defmt::info!("mark: no victim to mark"),
-            }
-            self.shown = self.receiver.display_model();
-            redraw = true;
+        // The buttons (the mark button debounced over 3 ticks by its own poll).
+        let now_ms = self.ms_clock.now_ms(DWT::cycle_count());
+        let steps = self.receiver.motion().total_steps();
+        let low = self.sound_pin.is_low();
+        let sound = self.controls.sound_button(low, now_ms, steps);
+        let mut redraw = self.respond(sound);
+        if self.mark.poll() {
+            let r = self.controls.mark_button(steps);
+            redraw |= self.respond(r);
         }
         let t = self.clock.now();
         // A fault shows at once and is logged when it comes and goes.
@@ -776,9 +749,7 @@ impl Proc {
             match reading {
                 Ok(r) => {
                     // The calibration fits the raw readings.
-                    if let Some(p) = self.procedure.as_mut() {
-                        p.on_mag(&r.mag);
-                    }
+                    self.controls.on_mag(&r.mag);
                     let mag = self.mag_cal.map_or(r.mag, |c| c.apply(&r.mag));
                     self.log(LogItem::Imu {
                         t: t.secs_f64(),
@@ -827,84 +798,29 @@ impl Proc {
         }
     }
 
-    /// The sound button (debounced level → short and long presses → the menu): true
-    /// when the menu changed on screen.
-    fn buttons(&mut self) -> bool {
-        let now_ms = self.ms_clock.now_ms(DWT::cycle_count());
-        // Pressed after 3 low polls in a row (30 ms: past a switch's bounce).
-        if self.sound_pin.is_low() {
-            self.sound_low = self.sound_low.saturating_add(1);
-        } else {
-            self.sound_low = 0;
+    /// Carries out what the buttons asked for (`board::controls`): log records, a victim
+    /// marked, the closed menu's settings applied and stored. True when the screen
+    /// changed.
+    fn respond(&mut self, r: Response) -> bool {
+        if let Some(muted) = r.muted {
+            defmt::info!("sound {=str}", if muted { "off" } else { "on" });
         }
-        let Some(press) = self.press.update(self.sound_low >= 3, now_ms) else {
-            return false;
-        };
-        // An outcome on screen: any press takes it away. A procedure running: a short
-        // press cancels it.
-        if self.outcome.take().is_some() {
-            return true;
+        if let Some((what, result, value)) = r.calibration {
+            defmt::info!("{=str}: {=str}", what, result);
+            self.calibration_event(what, result, value);
         }
-        if let Some(p) = self.procedure.as_ref() {
-            if press == Press::Short {
-                let what = procedure_word(p.procedure());
-                self.procedure = None;
-                self.calibration_event(what, "cancelled", None);
-                defmt::info!("{=str} cancelled", what);
+        if r.mark_victim {
+            self.event("mark", None, None);
+            match self.receiver.mark() {
+                Ok(n) => defmt::info!("victim {=u8} marked", n),
+                Err(_) => defmt::info!("mark: no victim to mark"),
             }
-            return true;
+            self.shown = self.receiver.display_model();
         }
-        match self.menu.sound_button(press) {
-            MenuEvent::ToggleMute => {
-                self.muted = !self.muted;
-                if !self.muted {
-                    self.chirp_until_ms = now_ms + sound::CHIRP_MS;
-                }
-                defmt::info!("sound {=str}", if self.muted { "off" } else { "on" });
-                false
-            }
-            MenuEvent::Start(p) => {
-                let field = self.menu.settings().earth_field().norm();
-                let steps = self.receiver.motion().total_steps();
-                match Running::start(p, steps, field) {
-                    Ok(r) => {
-                        self.procedure = Some(r);
-                        self.calibration_event(procedure_word(p), "start", None);
-                        defmt::info!("{=str} started", procedure_word(p));
-                    }
-                    // Only a region's field that is not positive: none is.
-                    Err(e) => defmt::error!("procedure refused: {}", e),
-                }
-                true
-            }
-            MenuEvent::Closed { changed } => {
-                self.close_menu(changed);
-                true
-            }
-            MenuEvent::Opened | MenuEvent::Changed | MenuEvent::None => true,
+        if let Some(c) = r.closed {
+            self.close_menu(c);
         }
-    }
-
-    /// The mark button ends the running procedure: its outcome is shown, and a result
-    /// goes into the menu's settings (stored when the menu closes).
-    fn finish_procedure(&mut self) {
-        let Some(p) = self.procedure.take() else {
-            return;
-        };
-        let what = procedure_word(p.procedure());
-        let out = p.finish(self.receiver.motion().total_steps());
-        let mut s = *self.menu.settings();
-        if procedure::apply(&out, &mut s) {
-            self.menu.set_settings(s);
-        }
-        let value = match out {
-            Outcome::StepLength { length_m, .. } => Some(length_m),
-            Outcome::Mag(fit) => Some(fit.residual_rms_ut),
-            Outcome::WalkFailed(_) | Outcome::MagFailed(_) => None,
-        };
-        defmt::info!("{=str}: {=str}", what, out.word());
-        self.calibration_event(what, out.word(), value);
-        self.outcome = Some(out);
+        r.redraw || r.mark_victim
     }
 
     /// A `calibration` event: which procedure, what happened, its value.
@@ -929,7 +845,7 @@ impl Proc {
         cfg.mode = s.mode.app();
         match rebuild(self.receiver, cfg) {
             Ok(()) => {
-                self.applied = *s;
+                self.controls.rebuilt(s);
                 self.last_imu_t = None;
                 self.shown = self.receiver.display_model();
                 self.log(LogItem::Header {
@@ -942,51 +858,32 @@ impl Proc {
         }
     }
 
-    /// The menu closed: its settings apply from now on (volume 0 mutes; a new mode,
-    /// region or step length rebuilds the receiver: a new search), are logged and go to
-    /// the idle loop to be stored in flash (it stalls every task while it writes).
-    fn close_menu(&mut self, changed: bool) {
-        if changed {
-            let s = *self.menu.settings();
-            self.muted = s.volume == 0;
-            self.mag_cal = s.calibration.mag;
-            let a = &self.applied;
-            if (s.mode, s.region, s.calibration.step_length_m)
-                != (a.mode, a.region, a.calibration.step_length_m)
-            {
-                self.rebuild_receiver(&s);
-            }
-            let why = if self.saves.enqueue(s).is_ok() {
-                defmt::info!("settings changed (volume {=u8}); saving", s.volume);
-                "menu"
-            } else {
-                defmt::warn!("settings changed; not stored (saves pending)");
-                "menu_not_saved"
-            };
-            self.event("settings", Some(why), Some(i64::from(s.volume)));
+    /// The menu closed with changed settings: they apply from now on (a new mode, region
+    /// or step length rebuilds the receiver: a new search), are logged and go to the idle
+    /// loop to be stored in flash (it stalls every task while it writes).
+    fn close_menu(&mut self, c: Closed) {
+        let s = c.settings;
+        self.mag_cal = s.calibration.mag;
+        if c.rebuild {
+            self.rebuild_receiver(&s);
         }
+        let why = if self.saves.enqueue(s).is_ok() {
+            defmt::info!("settings changed (volume {=u8}); saving", s.volume);
+            "menu"
+        } else {
+            defmt::warn!("settings changed; not stored (saves pending)");
+            "menu_not_saved"
+        };
+        self.event("settings", Some(why), Some(i64::from(s.volume)));
     }
 
-    /// The tone of the moment (10 ms edges at the tick).
+    /// The tone of the moment (10 ms edges at the tick) at its volume.
     fn tone(&mut self) {
         let now_ms = self.ms_clock.now_ms(DWT::cycle_count());
-        let tone = if now_ms < self.chirp_until_ms {
-            Some(sound::CHIRP_HZ)
-        } else {
-            sound::tone_at(
-                &SoundInput {
-                    status: self.shown.status,
-                    distance_m: self.shown.distance_m,
-                    fault: self.fault,
-                    muted: self.muted,
-                },
-                now_ms,
-            )
-        };
-        // The menu's volume (its copy: a change is heard while choosing it); the sound
-        // button's "on" plays at least the lowest step.
-        let volume = self.menu.settings().volume.max(1);
-        let play = tone.map(|hz| (hz, sound::duty(self.buzzer.get_max_duty(), volume)));
+        let play = self
+            .controls
+            .tone(&self.shown, self.fault, now_ms)
+            .map(|(hz, volume)| (hz, sound::duty(self.buzzer.get_max_duty(), volume)));
         if play != self.playing {
             match play {
                 Some((hz, duty)) => {
@@ -1082,35 +979,11 @@ impl Writer {
         let read = SAMPLES.load(Ordering::Relaxed).wrapping_sub(read0);
         let lost = settings_store::samples_lost(stall_ms, self.adc_rate_hz, read);
         FLASH_LOST.fetch_add(lost, Ordering::Relaxed);
-        let t = self.last_t;
-        let stall = (
-            "stall_ms",
-            Detail::Int(i64::try_from(stall_ms).unwrap_or(i64::MAX)),
-        );
-        match r {
-            Ok(saved) => {
-                defmt::info!("settings saved: {} in {=u64} ms", saved, stall_ms);
-                self.log.event(
-                    t,
-                    "settings",
-                    Some("saved"),
-                    &[
-                        ("slot", Detail::Int(i64::from(saved.slot))),
-                        ("erased", Detail::Flag(saved.erased)),
-                        stall,
-                    ],
-                );
-            }
-            Err(e) => {
-                defmt::error!("settings not saved: {}", e);
-                self.log.event(
-                    t,
-                    "settings",
-                    Some("not_saved"),
-                    &[("error", Detail::Text(e.word())), stall],
-                );
-            }
+        match &r {
+            Ok(saved) => defmt::info!("settings saved: {} in {=u64} ms", saved, stall_ms),
+            Err(e) => defmt::error!("settings not saved: {}", e),
         }
+        self.log.settings_saved(self.last_t, &r, stall_ms);
     }
 
     /// Feeds the watchdog while the processing task progresses.
@@ -1140,14 +1013,6 @@ impl Writer {
                 }
             }
         }
-    }
-}
-
-/// The log's word for a menu procedure.
-fn procedure_word(p: Procedure) -> &'static str {
-    match p {
-        Procedure::StepWalk => "step_walk",
-        Procedure::MagCalibration => "mag_cal",
     }
 }
 
@@ -1288,40 +1153,7 @@ mod app {
         let earth = settings.earth_field();
         log.header(PROFILE.imu.rate_hz, &earth, true);
         log.reset(0.0, &last_reset);
-        let region = settings::REGIONS
-            .get(usize::from(settings.region))
-            .map_or("?", |r| r.name);
-        log.event(
-            0.0,
-            "settings",
-            Some(if settings_error.is_some() {
-                "defaults"
-            } else {
-                "stored"
-            }),
-            &[
-                // "none": not calibrated (the step detector's default length applies).
-                (
-                    "step_length_m",
-                    step_length_m.map_or(Detail::Text("none"), Detail::Num),
-                ),
-                ("mode", Detail::Text(settings.mode.word())),
-                ("volume", Detail::Int(i64::from(settings.volume))),
-                ("region", Detail::Text(region)),
-                (
-                    "antenna_cal",
-                    Detail::Flag(settings.calibration.antenna.is_some()),
-                ),
-                ("mag_cal", Detail::Flag(settings.calibration.mag.is_some())),
-                (
-                    "slot",
-                    loaded
-                        .slot
-                        .map_or(Detail::Text("none"), |k| Detail::Int(i64::from(k))),
-                ),
-                ("torn", Detail::Int(i64::from(loaded.torn))),
-            ],
-        );
+        log.settings_loaded(0.0, &loaded, step_length_m);
         if let Some(e) = settings_error {
             defmt::warn!("settings: {}; defaults apply", e);
         }
@@ -1463,8 +1295,6 @@ mod app {
         let mark = MarkButton::new(gpioc.pc6.into_pull_up_input());
         // The sound button: the same debounced press, on D12.
         let sound_pin = gpioc.pc2.into_pull_up_input();
-        // Volume 0 mutes; the other steps set the buzzer's duty (`sound::duty`).
-        let muted = !SOUND_ON || settings.volume == 0;
         // The IF range switch starts in the high range, the ADC at the profile's gain: the
         // DSP's starting setting (`BoardProfile::start_range`).
         let mut if_range = gpioc.pc3.into_push_pull_output();
@@ -1529,15 +1359,8 @@ mod app {
                     if_range,
                     mark,
                     sound_pin,
-                    sound_low: 0,
-                    press: PressDetector::new(),
-                    menu: Menu::new(settings),
-                    muted,
-                    chirp_until_ms: 0,
+                    controls: Controls::new(settings, SOUND_ON),
                     playing: None,
-                    procedure: None,
-                    outcome: None,
-                    applied: settings,
                     buzz_timer,
                     buzzer,
                     mag_cal,

@@ -7,9 +7,11 @@
 //! ([`sd_log`]) with the device events a replay needs ([`board_log`]), the settings stored in flash
 //! ([`settings`], kept safe against power cuts by [`settings_store`]) and the two-button menu that edits them ([`menu`])
 //! with its calibration procedures ([`procedure`]). The board binary's tasks hand records to the
-//! log writer as [`log_item`]s and screens to the display task as [`view`]s.
+//! log writer as [`log_item`]s and screens to the display task as [`view`]s; the buttons, the
+//! menu and the tone are driven by [`controls`].
 
 pub mod board_log;
+pub mod controls;
 pub mod crash;
 pub mod gain;
 pub mod health;
