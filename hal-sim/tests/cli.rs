@@ -131,3 +131,63 @@ fn help_explains_the_options() {
         assert!(text(&out.stdout).contains(word));
     }
 }
+
+/// The seeded reports share one vocabulary: `--tries` (at least 1) and `--first-seed`.
+const SEEDED_REPORTS: [&str; 7] = [
+    "accuracy",
+    "rescue-report",
+    "multi-report",
+    "classic-report",
+    "baselines-report",
+    "sensing-report",
+    "consistency",
+];
+
+#[test]
+fn every_seeded_report_takes_tries_and_first_seed_and_refuses_zero_tries() {
+    for cmd in SEEDED_REPORTS {
+        let out = hal_sim(&[cmd, "--help"]);
+        assert!(out.status.success(), "{cmd} --help");
+        let help = text(&out.stdout);
+        for flag in ["--tries", "--first-seed", "--out"] {
+            assert!(help.contains(flag), "{cmd}: {flag} missing from\n{help}");
+        }
+        let out = hal_sim(&[cmd, "--tries", "0"]);
+        assert_eq!(out.status.code(), Some(2), "{cmd} --tries 0 was accepted");
+        let err = text(&out.stderr);
+        assert!(err.contains("--tries") && err.contains("0"), "{cmd}: {err}");
+    }
+}
+
+#[test]
+fn help_has_no_rustdoc_links() {
+    let out = hal_sim(&["--help"]);
+    let top = text(&out.stdout);
+    let mut commands: Vec<String> = top
+        .lines()
+        .skip_while(|l| !l.starts_with("Commands:"))
+        .skip(1)
+        .take_while(|l| !l.trim().is_empty())
+        .filter_map(|l| l.split_whitespace().next().map(String::from))
+        .filter(|c| c != "help")
+        .collect();
+    assert!(commands.len() > 10, "{top}");
+    commands.push(String::new());
+    for cmd in &commands {
+        for flag in ["-h", "--help"] {
+            let args: Vec<&str> = [cmd.as_str(), flag]
+                .into_iter()
+                .filter(|a| !a.is_empty())
+                .collect();
+            let out = hal_sim(&args);
+            assert!(out.status.success(), "{args:?}");
+            let help = text(&out.stdout);
+            for line in help.lines() {
+                assert!(
+                    !line.contains("[`") && !line.contains("`]"),
+                    "{args:?}: a rustdoc link in the help:\n{line}"
+                );
+            }
+        }
+    }
+}

@@ -17,6 +17,9 @@ const REPORTS: &[&str] = &[
     "rescue.md",
     "rescue-seeds1000.md",
     "baselines.md",
+    "sensing.md",
+    "team.md",
+    "consistency.md",
 ];
 
 fn reports_dir() -> PathBuf {
@@ -40,6 +43,9 @@ fn rerun(side: &Sidecar, record: &serde_json::Value) -> serde_json::Value {
         "multi-report" => hal_sim::eval::multi_report::rerun(record),
         "rescue-report" => hal_sim::eval::rescue_report::rerun(record),
         "baselines-report" => hal_sim::eval::baselines::record::rerun(record),
+        "sensing-report" => hal_sim::eval::sensing_report::rerun(record),
+        "team-report" => hal_sim::team::report::rerun(record),
+        "consistency" => hal_sim::sensors::faults::consistency::rerun(record),
         other => panic!("unknown report kind {other}"),
     };
     result.unwrap_or_else(|e| panic!("{}: re-running {record}: {e:#}", side.report))
@@ -94,4 +100,37 @@ fn rescue_report_on_the_second_seed_range_is_current() {
 #[test]
 fn baselines_report_is_current() {
     check_report(REPORTS[5]);
+}
+
+#[test]
+fn sensing_report_is_current() {
+    check_report(REPORTS[6]);
+}
+
+#[test]
+fn team_report_is_current() {
+    check_report(REPORTS[7]);
+}
+
+#[test]
+fn consistency_report_is_current() {
+    check_report(REPORTS[8]);
+}
+
+/// `reliability.md` is written by hand but quotes the consistency table: it must quote
+/// the one `consistency.md` holds (whose sidecar the test above checks).
+#[test]
+fn reliability_quotes_the_current_consistency_table() {
+    let (generated, side) = load(REPORTS[8]);
+    let path = reports_dir().join("reliability.md");
+    let reliability =
+        std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let table: Vec<&str> = generated.lines().filter(|l| l.starts_with('|')).collect();
+    assert!(table.len() > 2, "consistency.md holds no table");
+    assert!(
+        reliability.contains(&table.join("\n")),
+        "reliability.md does not quote consistency.md's table: copy it from there (regenerated \
+         with `{}`)",
+        side.command
+    );
 }

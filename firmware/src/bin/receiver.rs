@@ -16,7 +16,8 @@
 //! | mark button (push button to ground, internal pull-up; polled at 100 Hz, debounced) | GPIO | PC6 (D6) |
 //! | fault LED (the Feather's red LED): lit while a sensor fault holds or the display is down | GPIO | PC1 (D13) |
 //! | buzzer (passive piezo): guidance tones ([`firmware::board::sound`]) | TIM4 CH3 PWM | PB8 (D9) |
-//! | sound button (push button to ground, internal pull-up; debounced): mute / unmute, a chirp confirms "on" | GPIO | PC2 (D12) |
+//! | sound button (push button to ground, internal pull-up; debounced): short = mute / unmute (a chirp confirms "on"), long = the menu ([`firmware::board::controls`]) | GPIO | PC2 (D12) |
+//! | settings (append-only slots, [`firmware::board::settings_store`]), written by the idle loop when the menu closes with a change | flash sector 11 | – |
 //! | battery voltage (the Feather's ½ divider on BAT, read once a second) | ADC1 IN3 | PA3 (on board) |
 //! | supervision: independent watchdog (1 s), cycle counter (progress times) | IWDG, DWT | – |
 //!
@@ -26,7 +27,8 @@
 //!
 //! Supervision: the IWDG is fed only while the main loop's work progresses
 //! ([`firmware::board::watchdog`]: the sample queue drained within 1 s, a timer tick
-//! handled within 0.5 s); a panic stores its message in no-init RAM and resets, and a
+//! handled within 0.5 s; its period is 8 s while a settings save stalls the flash, and
+//! the samples lost are logged); a panic stores its message in no-init RAM and resets, and a
 //! starved watchdog stores the stalled work first ([`firmware::board::crash`]); the next
 //! boot logs the record and shows it on the display for 3 s. The I2C bus is cleared at
 //! boot (a slave may still hold SDA from a transfer the reset cut), checked before every
@@ -86,7 +88,7 @@ use firmware::board::schedule::{
     self, IMU_QUEUE, LOG_QUEUE, PRIO_DISPLAY, PRIO_DRDY, PRIO_IMU, PRIO_PROCESS,
 };
 use firmware::board::sd_log::SdState;
-use firmware::board::settings::{self, Settings};
+use firmware::board::settings::Settings;
 use firmware::board::settings_store::{self, BOARD_AREA};
 use firmware::board::sound;
 use firmware::board::view::{self, View};
@@ -96,7 +98,6 @@ use firmware::drivers::ads131m04::Ads131m04;
 use firmware::drivers::imu::{Imu, ImuReading};
 use firmware::frontend::{Frontend, IfRange, PulseMeasurement, RangeChange};
 use firmware::motion::MagCalibration;
-use firmware::session_log::Detail;
 use firmware::timebase::{ClockEvent, Instant, SampleClock, pulse_centre_us};
 use firmware::victims::MarkButton;
 use heapless::spsc::{Consumer, Producer, Queue};
@@ -978,35 +979,11 @@ impl Writer {
         let read = SAMPLES.load(Ordering::Relaxed).wrapping_sub(read0);
         let lost = settings_store::samples_lost(stall_ms, self.adc_rate_hz, read);
         FLASH_LOST.fetch_add(lost, Ordering::Relaxed);
-        let t = self.last_t;
-        let stall = (
-            "stall_ms",
-            Detail::Int(i64::try_from(stall_ms).unwrap_or(i64::MAX)),
-        );
-        match r {
-            Ok(saved) => {
-                defmt::info!("settings saved: {} in {=u64} ms", saved, stall_ms);
-                self.log.event(
-                    t,
-                    "settings",
-                    Some("saved"),
-                    &[
-                        ("slot", Detail::Int(i64::from(saved.slot))),
-                        ("erased", Detail::Flag(saved.erased)),
-                        stall,
-                    ],
-                );
-            }
-            Err(e) => {
-                defmt::error!("settings not saved: {}", e);
-                self.log.event(
-                    t,
-                    "settings",
-                    Some("not_saved"),
-                    &[("error", Detail::Text(e.word())), stall],
-                );
-            }
+        match &r {
+            Ok(saved) => defmt::info!("settings saved: {} in {=u64} ms", saved, stall_ms),
+            Err(e) => defmt::error!("settings not saved: {}", e),
         }
+        self.log.settings_saved(self.last_t, &r, stall_ms);
     }
 
     /// Feeds the watchdog while the processing task progresses.
@@ -1176,40 +1153,7 @@ mod app {
         let earth = settings.earth_field();
         log.header(PROFILE.imu.rate_hz, &earth, true);
         log.reset(0.0, &last_reset);
-        let region = settings::REGIONS
-            .get(usize::from(settings.region))
-            .map_or("?", |r| r.name);
-        log.event(
-            0.0,
-            "settings",
-            Some(if settings_error.is_some() {
-                "defaults"
-            } else {
-                "stored"
-            }),
-            &[
-                // "none": not calibrated (the step detector's default length applies).
-                (
-                    "step_length_m",
-                    step_length_m.map_or(Detail::Text("none"), Detail::Num),
-                ),
-                ("mode", Detail::Text(settings.mode.word())),
-                ("volume", Detail::Int(i64::from(settings.volume))),
-                ("region", Detail::Text(region)),
-                (
-                    "antenna_cal",
-                    Detail::Flag(settings.calibration.antenna.is_some()),
-                ),
-                ("mag_cal", Detail::Flag(settings.calibration.mag.is_some())),
-                (
-                    "slot",
-                    loaded
-                        .slot
-                        .map_or(Detail::Text("none"), |k| Detail::Int(i64::from(k))),
-                ),
-                ("torn", Detail::Int(i64::from(loaded.torn))),
-            ],
-        );
+        log.settings_loaded(0.0, &loaded, step_length_m);
         if let Some(e) = settings_error {
             defmt::warn!("settings: {}; defaults apply", e);
         }

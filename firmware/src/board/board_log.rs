@@ -22,6 +22,8 @@ use crate::Vec3;
 use crate::board::crash::LastReset;
 use crate::board::gain::{GainEvent, if_word, reason_word};
 use crate::board::sd_log::{SdSink, SdState};
+use crate::board::settings::REGIONS;
+use crate::board::settings_store::{Loaded, Saved, StoreError};
 use crate::frontend::PulseMeasurement;
 use crate::session_log::{Detail, Recorder, RecorderStats, Tee, plain_text};
 use crate::timebase::Instant;
@@ -108,6 +110,68 @@ impl<D: BlockDevice, U: Write> BoardLog<D, U> {
                 ("applied", Detail::Flag(e.applied)),
             ],
         );
+    }
+
+    /// The settings read at boot (`why` `stored` or `defaults`): each value, the slot
+    /// they came from and the newer torn slots; `step_length_m` is the length in use
+    /// (`None`: not calibrated, the step detector's default applies).
+    pub fn settings_loaded(&mut self, t: f64, loaded: &Loaded, step_length_m: Option<f32>) {
+        let s = &loaded.settings;
+        let region = REGIONS.get(usize::from(s.region)).map_or("?", |r| r.name);
+        let why = if loaded.defaults_because.is_some() {
+            "defaults"
+        } else {
+            "stored"
+        };
+        self.event(
+            t,
+            "settings",
+            Some(why),
+            &[
+                (
+                    "step_length_m",
+                    step_length_m.map_or(Detail::Text("none"), Detail::Num),
+                ),
+                ("mode", Detail::Text(s.mode.word())),
+                ("volume", Detail::Int(i64::from(s.volume))),
+                ("region", Detail::Text(region)),
+                ("antenna_cal", Detail::Flag(s.calibration.antenna.is_some())),
+                ("mag_cal", Detail::Flag(s.calibration.mag.is_some())),
+                (
+                    "slot",
+                    loaded
+                        .slot
+                        .map_or(Detail::Text("none"), |k| Detail::Int(i64::from(k))),
+                ),
+                ("torn", Detail::Int(i64::from(loaded.torn))),
+            ],
+        );
+    }
+
+    /// How a settings save went (`why` `saved` or `not_saved`), with the flash's stall.
+    pub fn settings_saved(&mut self, t: f64, result: &Result<Saved, StoreError>, stall_ms: u64) {
+        let stall = (
+            "stall_ms",
+            Detail::Int(i64::try_from(stall_ms).unwrap_or(i64::MAX)),
+        );
+        match result {
+            Ok(saved) => self.event(
+                t,
+                "settings",
+                Some("saved"),
+                &[
+                    ("slot", Detail::Int(i64::from(saved.slot))),
+                    ("erased", Detail::Flag(saved.erased)),
+                    stall,
+                ],
+            ),
+            Err(e) => self.event(
+                t,
+                "settings",
+                Some("not_saved"),
+                &[("error", Detail::Text(e.word())), stall],
+            ),
+        }
     }
 
     /// Any event (written with `seq`; errors counted).
@@ -272,6 +336,52 @@ mod tests {
         assert_eq!(
             lines[5],
             r#"{"type":"event","t":2.6,"kind":"log_error","why":"sd","failed":0,"refused":0,"sd_lost_bytes":0,"sd":"SD ERR","seq":5}"#
+        );
+    }
+
+    #[test]
+    fn settings_events_say_where_they_came_from_and_how_a_save_went() {
+        use crate::board::settings::Settings;
+        use crate::board::settings_store::LoadError;
+        let mut log: BoardLog<RamCard<'_>, String> =
+            BoardLog::new(SdSink::new(None), Some(String::new()));
+        let stored = Loaded {
+            settings: Settings {
+                region: 2,
+                ..Settings::DEFAULT
+            },
+            defaults_because: None,
+            slot: Some(7),
+            used: 9,
+            torn: 1,
+        };
+        log.settings_loaded(0.0, &stored, Some(0.7));
+        let defaults = Loaded {
+            settings: Settings::DEFAULT,
+            defaults_because: Some(LoadError::Store(StoreError::Read)),
+            slot: None,
+            used: 0,
+            torn: 0,
+        };
+        log.settings_loaded(0.0, &defaults, None);
+        let saved = Saved {
+            slot: 8,
+            erased: false,
+            skipped: 0,
+            unchanged: false,
+        };
+        log.settings_saved(5.0, &Ok(saved), 2);
+        log.settings_saved(6.0, &Err(StoreError::Verify), 1900);
+        let uart = log.uart().cloned().unwrap_or_default();
+        let lines: std::vec::Vec<&str> = uart.lines().collect();
+        assert_eq!(
+            lines,
+            [
+                r#"{"type":"event","t":0,"kind":"settings","why":"stored","step_length_m":0.7,"mode":"sog","volume":3,"region":"NORWAY","antenna_cal":false,"mag_cal":false,"slot":7,"torn":1,"seq":0}"#,
+                r#"{"type":"event","t":0,"kind":"settings","why":"defaults","step_length_m":"none","mode":"sog","volume":3,"region":"ALPS","antenna_cal":false,"mag_cal":false,"slot":"none","torn":0,"seq":1}"#,
+                r#"{"type":"event","t":5,"kind":"settings","why":"saved","slot":8,"erased":false,"stall_ms":2,"seq":2}"#,
+                r#"{"type":"event","t":6,"kind":"settings","why":"not_saved","error":"verify","stall_ms":1900,"seq":3}"#,
+            ]
         );
     }
 

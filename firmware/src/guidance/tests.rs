@@ -31,6 +31,16 @@ fn input(h: Vec3, walked: f32, yaw: f32, e: Option<VictimEstimate>) -> GuidanceI
     }
 }
 
+/// A fresh guidance localized from 30 m away (a concentrated belief there, so that a mean
+/// near the receiver is trusted later).
+fn localized(cfg: GuidanceConfig) -> Guidance {
+    let mut g = Guidance::new(cfg);
+    let far = est(Vec3::new(30.0, 0.0, -2.0), 2.0);
+    let o = g.update(&input(Vec3::new(1e-4, 0.0, 0.0), 1.0, 0.0, Some(far)));
+    assert_eq!(o.status, Status::Localized);
+    g
+}
+
 #[test]
 fn flux_sign_follows_the_heading_then_the_previous_direction() {
     let mut g = Guidance::new(GuidanceConfig::default());
@@ -229,15 +239,8 @@ fn switches_to_the_mean_when_far_in_mahalanobis_distance_and_latches() {
 
 #[test]
 fn probe_needs_a_tight_belief_right_below_for_two_pulses() {
-    let mut g = Guidance::new(GuidanceConfig::default());
+    let mut g = localized(GuidanceConfig::default());
     let h = Vec3::new(1e-4, 0.0, 0.0);
-    let o = g.update(&input(
-        h,
-        1.0,
-        0.0,
-        Some(est(Vec3::new(30.0, 0.0, -2.0), 2.0)),
-    ));
-    assert_eq!(o.status, Status::Localized);
     // Close but 0.7 m off (beyond reach): not yet.
     let o = g.update(&input(
         h,
@@ -261,14 +264,8 @@ fn probe_needs_a_tight_belief_right_below_for_two_pulses() {
 #[test]
 fn an_uncertain_depth_over_the_mean_asks_for_a_lift_before_probing() {
     let cfg = GuidanceConfig::default();
-    let mut g = Guidance::new(cfg);
+    let mut g = localized(cfg);
     let h = Vec3::new(1e-4, 0.0, 0.0);
-    let _ = g.update(&input(
-        h,
-        1.0,
-        0.0,
-        Some(est(Vec3::new(30.0, 0.0, -2.0), 2.0)),
-    ));
     let mut wide = est(Vec3::new(0.1, 0.0, -2.2), 0.05);
     wide.cov[(2, 2)] = 0.3 * 0.3;
     // Far from the mean: no lift even with a wide depth.
@@ -283,13 +280,7 @@ fn an_uncertain_depth_over_the_mean_asks_for_a_lift_before_probing() {
     let o = g.update(&input(h, 0.0, 0.0, Some(wide)));
     assert!(!o.lift && o.status == Status::Probe);
     // A pinned depth probes without a lift.
-    let mut g = Guidance::new(cfg);
-    let _ = g.update(&input(
-        h,
-        1.0,
-        0.0,
-        Some(est(Vec3::new(30.0, 0.0, -2.0), 2.0)),
-    ));
+    let mut g = localized(cfg);
     let mut tight = wide;
     tight.cov[(2, 2)] = 0.1 * 0.1;
     assert!(!g.update(&input(h, 0.0, 0.0, Some(tight))).lift);
@@ -316,14 +307,8 @@ fn over_a_wide_mean_the_arrow_brackets_it_then_times_out() {
         bracket_range_ratio: 0.0,
         ..probe_rule_03()
     };
-    let mut g = Guidance::new(cfg);
+    let mut g = localized(cfg);
     let h = Vec3::new(1e-4, 0.0, 0.0);
-    let _ = g.update(&input(
-        h,
-        1.0,
-        0.0,
-        Some(est(Vec3::new(30.0, 0.0, -2.0), 2.0)),
-    ));
     // Over the mean (0.1 m) but σ = 0.4 m: bracket, no probe yet; the same side
     // until the receiver has reached it.
     let e = Some(est(Vec3::new(0.1, 0.0, -2.0), 0.4));
@@ -364,20 +349,6 @@ fn over_a_wide_mean_the_arrow_brackets_it_then_times_out() {
         })
         .count();
     assert_eq!(n + before, usize::from(cfg.probe_timeout_pulses));
-}
-
-/// Localizes a fresh guidance (a concentrated belief 30 m away).
-fn localized(cfg: GuidanceConfig) -> Guidance {
-    let mut g = Guidance::new(cfg);
-    let h = Vec3::new(1e-4, 0.0, 0.0);
-    let o = g.update(&input(
-        h,
-        1.0,
-        0.0,
-        Some(est(Vec3::new(30.0, 0.0, -2.0), 2.0)),
-    ));
-    assert_eq!(o.status, Status::Localized);
-    g
 }
 
 /// Pulses standing over a mean 0.2 m away until "probe here" (at most 40), with the
@@ -560,15 +531,6 @@ fn without_a_heading_the_belief_is_not_walked_to() {
     assert_eq!(g.update(&unknown(over)).status, Status::Probe);
 }
 
-/// A search localized from 30 m away (so that the mean near the receiver is trusted).
-fn localized_search(cfg: GuidanceConfig) -> Guidance {
-    let mut g = Guidance::new(cfg);
-    let far = est(Vec3::new(30.0, 0.0, -2.0), 2.0);
-    let _ = g.update(&input(Vec3::new(1e-4, 0.0, 0.0), 1.0, 0.0, Some(far)));
-    assert!(g.is_localized());
-    g
-}
-
 fn at_height(e: VictimEstimate, height: Option<f32>) -> GuidanceInput {
     GuidanceInput {
         height_m: height,
@@ -579,7 +541,7 @@ fn at_height(e: VictimEstimate, height: Option<f32>) -> GuidanceInput {
 #[test]
 fn a_rescuer_who_ignores_the_lowering_is_asked_a_few_times_then_left_alone() {
     let cfg = GuidanceConfig::default();
-    let mut g = localized_search(cfg);
+    let mut g = localized(cfg);
     // 1.5 m from the mean, 1.2 m deep below the snow, the receiver at 1 m.
     let near = est(Vec3::new(1.5, 0.0, -2.2), 0.3);
     // Farther than `lower_within_m`: not yet.
@@ -614,7 +576,7 @@ fn the_lowering_prompt_waits_for_a_walking_rescuer_to_stand_within_a_limit() {
     };
     // Steps still under way on the first pulses: the prompt stays on, then runs for
     // the standing intervals.
-    let mut g = localized_search(cfg);
+    let mut g = localized(cfg);
     for _ in 0..3 {
         assert_eq!(g.update(&walking(0.6)).height_prompt, HeightPrompt::Lower);
     }
@@ -623,7 +585,7 @@ fn the_lowering_prompt_waits_for_a_walking_rescuer_to_stand_within_a_limit() {
     }
     assert_eq!(g.update(&walking(0.0)).height_prompt, HeightPrompt::None);
     // A rescuer who walks on regardless is asked on a bounded number of pulses.
-    let mut g = localized_search(cfg);
+    let mut g = localized(cfg);
     let most = usize::from(cfg.height_prompt_pulses) * usize::from(PROMPT_SHOWN_FACTOR);
     let shown = (0..100)
         .filter(|_| g.update(&walking(0.6)).height_prompt == HeightPrompt::Lower)
@@ -634,7 +596,7 @@ fn the_lowering_prompt_waits_for_a_walking_rescuer_to_stand_within_a_limit() {
 #[test]
 fn probe_here_is_confirmed_by_pulses_after_the_lowering() {
     let cfg = GuidanceConfig::default();
-    let mut g = localized_search(cfg);
+    let mut g = localized(cfg);
     // Right over a tight mean at 1 m: "probe here" would need two pulses, but the
     // lowering comes first, as often as it is shown.
     let over = est(Vec3::new(0.05, 0.0, -2.2), 0.05);
@@ -656,7 +618,7 @@ fn probe_here_is_confirmed_by_pulses_after_the_lowering() {
 #[test]
 fn a_lowered_receiver_ends_the_prompt_and_the_depth_follows_the_height() {
     let cfg = GuidanceConfig::default();
-    let mut g = localized_search(cfg);
+    let mut g = localized(cfg);
     let o = g.update(&at_height(est(Vec3::new(1.5, 0.0, -2.2), 0.3), Some(1.0)));
     assert_eq!(o.height_prompt, HeightPrompt::Lower);
     // Lowered by 0.8 m: the victim is 0.8 m less below the receiver, the depth below
@@ -676,16 +638,16 @@ fn a_shallow_victim_is_lowered_to_but_an_untracked_height_is_not() {
     let cfg = GuidanceConfig::default();
     // 0.5 m deep: lowered to 0.2 m it is 0.7 m below the receiver, and the estimator's
     // initialization prior follows the tracked height (`set_receiver_height`).
-    let mut g = localized_search(cfg);
+    let mut g = localized(cfg);
     let o = g.update(&at_height(est(Vec3::new(1.0, 0.0, -1.5), 0.3), Some(1.0)));
     assert_eq!(o.height_prompt, HeightPrompt::Lower);
     // Deep, but the caller tracks no height.
-    let mut g = localized_search(cfg);
+    let mut g = localized(cfg);
     let o = g.update(&at_height(est(Vec3::new(1.0, 0.0, -3.0), 0.3), None));
     assert_eq!(o.height_prompt, HeightPrompt::None);
     assert!(o.depth_m.is_some_and(|d| (d - 2.0).abs() < 1e-5));
     // Switched off.
-    let mut g = localized_search(GuidanceConfig {
+    let mut g = localized(GuidanceConfig {
         lower_within_m: 0.0,
         ..cfg
     });
@@ -693,7 +655,7 @@ fn a_shallow_victim_is_lowered_to_but_an_untracked_height_is_not() {
     assert_eq!(o.height_prompt, HeightPrompt::None);
     // Withheld by the caller (several victims): no prompt, and "probe here" is not
     // held back by one.
-    let mut g = localized_search(cfg);
+    let mut g = localized(cfg);
     let withheld = |e: VictimEstimate| GuidanceInput {
         lower_allowed: false,
         ..at_height(e, Some(1.0))
@@ -708,7 +670,7 @@ fn a_shallow_victim_is_lowered_to_but_an_untracked_height_is_not() {
 #[test]
 fn a_lowered_receiver_far_from_the_mean_is_asked_to_be_raised() {
     let cfg = GuidanceConfig::default();
-    let mut g = localized_search(cfg);
+    let mut g = localized(cfg);
     let near = est(Vec3::new(1.0, 0.0, -1.4), 0.3);
     assert_eq!(
         g.update(&at_height(near, Some(0.2))).height_prompt,

@@ -3,7 +3,7 @@
 //! with half-block characters — then a PNG plot of the search (trajectory, victim,
 //! mixture components as 2σ ellipses at a few moments, estimate error and distance over
 //! time) and a PNG of the final screen.
-use crate::eval::plot;
+use crate::eval::plot::{self, ellipse, en, write_png};
 use crate::sim::closed_loop::{self, ClosedLoopConfig, Outcome, PulseRow};
 use anyhow::{Context, Result};
 use embedded_graphics::image::GetPixel;
@@ -259,21 +259,6 @@ pub fn write_frame_png(frame: &Frame, path: &Path, scale: u32) -> Result<()> {
     write_png(path, w, h, &buf)
 }
 
-pub(crate) fn write_png(path: &Path, w: u32, h: u32, rgb: &[u8]) -> Result<()> {
-    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-    }
-    let file =
-        std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
-    let mut enc = png::Encoder::new(std::io::BufWriter::new(file), w, h);
-    enc.set_color(png::ColorType::Rgb);
-    enc.set_depth(png::BitDepth::Eight);
-    let mut writer = enc.write_header()?;
-    writer.write_image_data(rgb)?;
-    writer.finish()?;
-    Ok(())
-}
-
 const PLOT_W: u32 = 900;
 const MAP_H: u32 = 820;
 const ERR_H: u32 = 300;
@@ -285,33 +270,6 @@ const SNAPSHOT_COLOURS: [RGBColor; 6] = [
     RGBColor(200, 0, 90),
     RGBColor(90, 90, 90),
 ];
-
-/// Map coordinates: x = east (−west), y = north.
-pub(crate) fn en(p: [f64; 2]) -> (f64, f64) {
-    (-p[1], p[0])
-}
-
-/// The 2σ ellipse of a horizontal covariance `[xx, xy, yy]` around `m` (north, west).
-fn ellipse(m: [f64; 2], c: [f64; 3]) -> Vec<(f64, f64)> {
-    ellipse_n(m, c, 32)
-}
-
-/// [`ellipse`] drawn with `n` segments.
-pub(crate) fn ellipse_n(m: [f64; 2], c: [f64; 3], n: u32) -> Vec<(f64, f64)> {
-    let (a, b, d) = (c[0], c[1], c[2]);
-    let half = 0.5 * (a - d);
-    let r = (half * half + b * b).sqrt();
-    let (l1, l2) = ((0.5 * (a + d) + r).max(0.0), (0.5 * (a + d) - r).max(0.0));
-    let th = 0.5 * (2.0 * b).atan2(a - d);
-    let (s, co) = th.sin_cos();
-    (0..=n)
-        .map(|i| {
-            let u = f64::from(i) / f64::from(n) * std::f64::consts::TAU;
-            let (x, y) = (2.0 * l1.sqrt() * u.cos(), 2.0 * l2.sqrt() * u.sin());
-            en([m[0] + co * x - s * y, m[1] + s * x + co * y])
-        })
-        .collect()
-}
 
 /// Plots a run: the map (trajectory, victim, mixture snapshots) above, errors below.
 pub fn plot_outcome(o: &Outcome, path: &Path) -> Result<()> {
@@ -362,18 +320,7 @@ fn summary_lines(o: &Outcome) -> (String, Vec<String>) {
 fn map_ranges(o: &Outcome, aspect: f64) -> (Range<f64>, Range<f64>) {
     let mut pts: Vec<(f64, f64)> = o.track.iter().map(|p| en(*p)).collect();
     pts.push(en([o.victim[0], o.victim[1]]));
-    let (x0, x1, y0, y1) = pts.iter().fold(
-        (f64::MAX, f64::MIN, f64::MAX, f64::MIN),
-        |(a, b, c, d), &(x, y)| (a.min(x), b.max(x), c.min(y), d.max(y)),
-    );
-    let span = (x1 - x0).max(y1 - y0).max(10.0) * 1.15;
-    let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
-    let (sx, sy) = if aspect >= 1.0 {
-        (span * aspect, span)
-    } else {
-        (span, span / aspect)
-    };
-    (cx - sx / 2.0..cx + sx / 2.0, cy - sy / 2.0..cy + sy / 2.0)
+    plot::map_view(&pts, 0.0, 1.15, aspect)
 }
 
 /// The map: walked track, start, victim, and the mixture's 2σ ellipses at a few pulses.
@@ -381,19 +328,7 @@ fn draw_map(o: &Outcome, area: &DrawingArea<BitMapBackend<'_>, Shift>) -> Result
     let (pw, ph) = area.dim_in_pixel();
     // Axes take ≈ 70 px left and 50 px below: keep one metre the same on both axes.
     let aspect = f64::from(pw.saturating_sub(100)) / f64::from(ph.saturating_sub(60)).max(1.0);
-    let (xr, yr) = map_ranges(o, aspect);
-    let mut chart = ChartBuilder::on(area)
-        .margin(10)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
-        .build_cartesian_2d(xr, yr)
-        .map_err(plot::err)?;
-    plot::draw_axes(
-        &mut chart,
-        ("east (m)", "north (m)"),
-        &|v| format!("{v:.0}"),
-        &|v| format!("{v:.0}"),
-    )?;
+    let mut chart = plot::map_chart(area, map_ranges(o, aspect), 10, 60)?;
     for (i, s) in o.snapshots.iter().enumerate() {
         let colour = SNAPSHOT_COLOURS[i % SNAPSHOT_COLOURS.len()];
         let mut comps: Vec<_> = s.components.iter().filter(|c| c.0 >= 1e-3).collect();
@@ -403,7 +338,10 @@ fn draw_map(o: &Outcome, area: &DrawingArea<BitMapBackend<'_>, Shift>) -> Result
                 .mix(0.25 + 0.75 * c.0.clamp(0.0, 1.0))
                 .stroke_width(1);
             chart
-                .draw_series(std::iter::once(PathElement::new(ellipse(c.1, c.2), style)))
+                .draw_series(std::iter::once(PathElement::new(
+                    ellipse(c.1, c.2, 32),
+                    style,
+                )))
                 .map_err(plot::err)?;
         }
         chart

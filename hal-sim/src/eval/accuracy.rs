@@ -622,9 +622,7 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
         IEKF_MIN_WEIGHT.store(w.to_bits(), std::sync::atomic::Ordering::Relaxed);
     }
     let mut flags = String::new();
-    if args.first_seed != 1 {
-        flags.push_str(&format!(" --first-seed {}", args.first_seed));
-    }
+    flags.push_str(&crate::eval::sidecar::first_seed_flag(args.first_seed));
     if let Some(n) = args.iekf_iterations {
         flags.push_str(&format!(" --iekf-iterations {n}"));
     }
@@ -728,7 +726,7 @@ fn sidecar(
 
 /// Re-runs one sidecar record (its case and seed) with the current code and default noise.
 pub fn rerun(record: &serde_json::Value) -> anyhow::Result<serde_json::Value> {
-    let case: Case = serde_json::from_value(record["case"].clone())?;
+    let case: Case = crate::eval::sidecar::field(record, "/case")?;
     let seed = crate::eval::sidecar::seed_of(record, "/run/seed")?;
     let run = run_case(case, seed, 1, &MotionNoise::default())
         .pop()

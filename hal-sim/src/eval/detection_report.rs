@@ -103,8 +103,13 @@ fn sigma_tot(u: &Unit) -> f64 {
 /// Runs the measurement (parallel over hours and grid points).
 pub fn measure(args: DetectionArgs) -> Result<Detection> {
     let units: Vec<_> = (1..=UNITS).map(unit).collect::<Result<_>>()?;
+    use indicatif::ParallelProgressIterator as _;
     let noise: Vec<_> = (0..args.noise_hours)
         .into_par_iter()
+        .progress_with(crate::cli::progress::bar(
+            args.noise_hours,
+            "noise-only hours",
+        ))
         .map(|h| {
             let (u, c) = &units[(h % UNITS) as usize];
             probe_run(
@@ -120,6 +125,10 @@ pub fn measure(args: DetectionArgs) -> Result<Detection> {
     let points: Vec<PdPoint> = SNR_GRID
         .par_iter()
         .enumerate()
+        .progress_with(crate::cli::progress::bar(
+            SNR_GRID.len() as u64,
+            "field magnitudes",
+        ))
         .map(|(k, &snr)| {
             let (u, c) = &units[k % UNITS as usize];
             let truth = probe_train(args.pulses, snr * SIGMA_BKG, 0xD37E_0000 + k as u64);

@@ -9,8 +9,9 @@ use std::fmt::Write as _;
 /// Options of `hal-sim multi-report`.
 #[derive(clap::Args, Debug, Clone)]
 pub struct Args {
-    /// Seeded rescues per layout (seeds 1..=tries; the victim count cycles 2, 3, 4).
-    #[arg(long, default_value_t = 60)]
+    /// Seeded rescues per layout (seeds first-seed..first-seed+tries; the victim count
+    /// cycles 2, 3, 4), at least 1.
+    #[arg(long, default_value_t = 60, value_parser = clap::value_parser!(u64).range(1..))]
     pub tries: u64,
     /// First seed (seeds first-seed..first-seed+tries), e.g. to check on unseen seeds.
     #[arg(long, default_value_t = 1)]
@@ -40,11 +41,7 @@ pub fn report(args: &Args, out: &mut dyn std::io::Write) -> anyhow::Result<()> {
     let command = format!(
         "cargo run -p hal-sim --release -- multi-report --tries {}{}",
         args.tries,
-        if args.first_seed == 1 {
-            String::new()
-        } else {
-            format!(" --first-seed {}", args.first_seed)
-        }
+        crate::eval::sidecar::first_seed_flag(args.first_seed)
     );
     let mut md = String::new();
     let _ = writeln!(md, "## Multiple burials (`{command}`)\n");
@@ -110,14 +107,13 @@ fn sidecar(
             }),
         );
     }
-    let check = all
-        .iter()
-        .filter(|r| {
+    let check = crate::eval::sidecar::records(
+        all.iter().filter(|r| {
             r.seed < args.first_seed + crate::eval::sidecar::CHECK_SEEDS
                 && r.layout == Layout::ALL[0]
-        })
-        .map(|r| crate::eval::sidecar::record(r, &[]))
-        .collect::<anyhow::Result<_>>()?;
+        }),
+        &[],
+    )?;
     Ok(crate::eval::sidecar::Sidecar::new(
         "multi-report",
         command,
@@ -130,7 +126,7 @@ fn sidecar(
 
 /// Re-runs one sidecar record (its seed and layout) with the current code.
 pub fn rerun(record: &serde_json::Value) -> anyhow::Result<serde_json::Value> {
-    let layout: Layout = serde_json::from_value(record["layout"].clone())?;
+    let layout: Layout = crate::eval::sidecar::field(record, "/layout")?;
     let seed = crate::eval::sidecar::seed_of(record, "/seed")?;
     let o = run(&MultiConfig::new(seed, victims_for(seed), layout))?;
     crate::eval::sidecar::record(&o, &[])

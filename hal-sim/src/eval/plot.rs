@@ -1,8 +1,12 @@
 //! What every figure shares: a real font (DejaVu Sans, embedded, so a fresh machine needs no
 //! font stack) for plotters' axes, ticks, captions and legends, and the error conversion.
+use anyhow::Context as _;
 use plotters::coord::ranged1d::ValueFormatter;
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use plotters::style::{FontStyle, register_font};
+use std::ops::Range;
+use std::path::Path;
 use std::sync::Once;
 
 /// The embedded font (license: `hal-sim/assets/LICENSE-DejaVu.txt`).
@@ -51,6 +55,95 @@ where
         .bold_line_style(RGBColor(215, 215, 215))
         .draw()
         .map_err(err)
+}
+
+/// A map's chart: metres east and north on equal scales.
+pub type MapChart<'a, 'b> =
+    ChartContext<'a, BitMapBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+
+/// Map coordinates of a `[north, west]` point: x = east (−west), y = north.
+pub fn en(p: [f64; 2]) -> (f64, f64) {
+    (-p[1], p[0])
+}
+
+/// The 2σ ellipse of a horizontal covariance `[xx, xy, yy]` around `m` (north, west), in
+/// map coordinates, drawn with `n` segments.
+pub fn ellipse(m: [f64; 2], c: [f64; 3], n: u32) -> Vec<(f64, f64)> {
+    let (a, b, d) = (c[0], c[1], c[2]);
+    let half = 0.5 * (a - d);
+    let r = (half * half + b * b).sqrt();
+    let (l1, l2) = ((0.5 * (a + d) + r).max(0.0), (0.5 * (a + d) - r).max(0.0));
+    let th = 0.5 * (2.0 * b).atan2(a - d);
+    let (s, co) = th.sin_cos();
+    (0..=n)
+        .map(|i| {
+            let u = f64::from(i) / f64::from(n) * std::f64::consts::TAU;
+            let (x, y) = (2.0 * l1.sqrt() * u.cos(), 2.0 * l2.sqrt() * u.sin());
+            en([m[0] + co * x - s * y, m[1] + s * x + co * y])
+        })
+        .collect()
+}
+
+/// The view of a map around `points` (map coordinates): the larger side of their bounding
+/// box (at least 10 m) plus `pad_m`, times `scale`, widened to `aspect` (width / height)
+/// so that a metre is as long on both axes.
+pub fn map_view(
+    points: &[(f64, f64)],
+    pad_m: f64,
+    scale: f64,
+    aspect: f64,
+) -> (Range<f64>, Range<f64>) {
+    let (x0, x1, y0, y1) = points.iter().fold(
+        (f64::MAX, f64::MIN, f64::MAX, f64::MIN),
+        |(a, b, c, d), &(x, y)| (a.min(x), b.max(x), c.min(y), d.max(y)),
+    );
+    let span = ((x1 - x0).max(y1 - y0).max(10.0) + pad_m) * scale;
+    let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
+    let (sx, sy) = if aspect >= 1.0 {
+        (span * aspect, span)
+    } else {
+        (span, span / aspect)
+    };
+    (cx - sx / 2.0..cx + sx / 2.0, cy - sy / 2.0..cy + sy / 2.0)
+}
+
+/// A map's chart on `area` over `view` (see [`map_view`]), its axes drawn: `margin` px
+/// around, `y_label_px` for the north axis' labels.
+pub fn map_chart<'a, 'b>(
+    area: &'a DrawingArea<BitMapBackend<'b>, plotters::coord::Shift>,
+    view: (Range<f64>, Range<f64>),
+    margin: u32,
+    y_label_px: u32,
+) -> anyhow::Result<MapChart<'a, 'b>> {
+    let mut chart = ChartBuilder::on(area)
+        .margin(margin)
+        .x_label_area_size(40)
+        .y_label_area_size(y_label_px)
+        .build_cartesian_2d(view.0, view.1)
+        .map_err(err)?;
+    draw_axes(
+        &mut chart,
+        ("east (m)", "north (m)"),
+        &|v| format!("{v:.0}"),
+        &|v| format!("{v:.0}"),
+    )?;
+    Ok(chart)
+}
+
+/// Writes an 8-bit RGB buffer of `w` × `h` pixels as a PNG (creating the directory).
+pub fn write_png(path: &Path, w: u32, h: u32, rgb: &[u8]) -> anyhow::Result<()> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    let file =
+        std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
+    let mut enc = png::Encoder::new(std::io::BufWriter::new(file), w, h);
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    let mut writer = enc.write_header()?;
+    writer.write_image_data(rgb)?;
+    writer.finish()?;
+    Ok(())
 }
 
 /// Draws the legend of a chart's labelled series in its upper right corner.

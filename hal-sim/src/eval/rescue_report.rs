@@ -27,8 +27,8 @@ use render::*;
 /// Options of `hal-sim rescue-report`.
 #[derive(clap::Args, Debug, Clone)]
 pub struct Args {
-    /// Seeded rescues per case (seeds 1..=tries).
-    #[arg(long, default_value_t = 100)]
+    /// Seeded rescues per case (seeds first-seed..first-seed+tries), at least 1.
+    #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u64).range(1..))]
     pub tries: u64,
     /// Write the markdown report here (default: stdout only).
     #[arg(long)]
@@ -571,11 +571,7 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
     let command = format!(
         "cargo run -p hal-sim --release -- rescue-report --tries {}{}{tradeoff}",
         args.tries,
-        if args.first_seed == 1 {
-            String::new()
-        } else {
-            format!(" --first-seed {}", args.first_seed)
-        },
+        crate::eval::sidecar::first_seed_flag(args.first_seed),
     );
     let mut report = format!("## Closed-loop rescues (`{command}`)\n\n{PROTOCOL}\n\n");
     let mut all = Vec::new();
@@ -652,18 +648,17 @@ fn sidecar(
         );
     }
     let first_case = cases.first().copied();
-    let check = all
-        .iter()
-        .filter(|r| {
+    let check = crate::eval::sidecar::records(
+        all.iter().filter(|r| {
             let seeds = if Some(r.case) == first_case {
                 crate::eval::sidecar::CHECK_SEEDS
             } else {
                 1
             };
             r.seed < args.first_seed + seeds
-        })
-        .map(|r| crate::eval::sidecar::record(r, VOLATILE))
-        .collect::<anyhow::Result<_>>()?;
+        }),
+        VOLATILE,
+    )?;
     Ok(crate::eval::sidecar::Sidecar::new(
         "rescue-report",
         command,
@@ -676,7 +671,7 @@ fn sidecar(
 
 /// Re-runs one sidecar record (its case and seed) with the current code.
 pub fn rerun(record: &serde_json::Value) -> anyhow::Result<serde_json::Value> {
-    let case: Case = serde_json::from_value(record["case"].clone())?;
+    let case: Case = crate::eval::sidecar::field(record, "/case")?;
     let seed = crate::eval::sidecar::seed_of(record, "/seed")?;
     crate::eval::sidecar::record(&run_one(case, seed)?, VOLATILE)
 }

@@ -63,6 +63,34 @@ pub fn seed_of(record: &serde_json::Value, pointer: &str) -> anyhow::Result<u64>
         .ok_or_else(|| anyhow::anyhow!("record without a seed at {pointer}"))
 }
 
+/// The value stored at `pointer` of a check record (a case, a layout, a preset).
+pub fn field<T: serde::de::DeserializeOwned>(
+    record: &serde_json::Value,
+    pointer: &str,
+) -> anyhow::Result<T> {
+    let v = record
+        .pointer(pointer)
+        .ok_or_else(|| anyhow::anyhow!("record without {pointer}"))?;
+    Ok(serde_json::from_value(v.clone())?)
+}
+
+/// The `--first-seed` part of a report's command: empty for the default seed 1.
+pub fn first_seed_flag(first_seed: u64) -> String {
+    if first_seed == 1 {
+        String::new()
+    } else {
+        format!(" --first-seed {first_seed}")
+    }
+}
+
+/// The check records of `runs` (see [`record`]).
+pub fn records<'a, T: Serialize + 'a>(
+    runs: impl IntoIterator<Item = &'a T>,
+    volatile: &[&str],
+) -> anyhow::Result<Vec<serde_json::Value>> {
+    runs.into_iter().map(|r| record(r, volatile)).collect()
+}
+
 /// FNV-1a, 64 bits: a stable content hash (std's hasher is not stable across releases).
 pub fn fnv64(bytes: &[u8]) -> String {
     let mut h: u64 = 0xcbf2_9ce4_8422_2325;

@@ -12,8 +12,9 @@
 //! direction carries the heading error and the device's yaw wobble), then holds it. The
 //! found point is where the receiver stands when it has moved to the "probe" point.
 //!
-//! `hal-sim classic-report --tries N` runs seeds 1..=N (the scenarios of `rescue-report`)
-//! and writes a markdown report beside the numbers of `hal-sim/reports/rescue.md`.
+//! `hal-sim classic-report --tries N` runs seeds 1..=N (`--first-seed` moves the range; the
+//! scenarios of `rescue-report`) and writes a markdown report beside the numbers of
+//! `hal-sim/reports/rescue.md`.
 use crate::io::receiver_config::ReceiverConfig;
 use crate::sim::closed_loop::{
     CROSS_HEIGHT_M, ClosedLoopConfig, DT, HOLD_HEIGHT_M, Person, PoseWindow, StartMode,
@@ -307,9 +308,13 @@ fn act(person: &mut Person, hand: &mut Hand, view: &Seen, heading_err: f64, t: f
 /// Options of `hal-sim classic-report`.
 #[derive(clap::Args, Debug, Clone)]
 pub struct Args {
-    /// Seeded rescues (seeds 1..=tries, the scenarios of `rescue-report`).
-    #[arg(long, default_value_t = 100)]
+    /// Seeded rescues (seeds first-seed..first-seed+tries, the scenarios of
+    /// `rescue-report`), at least 1.
+    #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u64).range(1..))]
     pub tries: u64,
+    /// First seed (1 for the checked-in report; another range validates it).
+    #[arg(long, default_value_t = 1)]
+    pub first_seed: u64,
     /// Write the markdown report here (default: stdout only).
     #[arg(long)]
     pub out: Option<std::path::PathBuf>,
@@ -404,7 +409,8 @@ pub fn report(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> 
     use rayon::prelude::*;
     let t0 = std::time::Instant::now();
     eprintln!("classic-report: classic mode, {} tries …", args.tries);
-    let classic: Vec<ClassicOutcome> = (1..=args.tries)
+    let seeds = args.first_seed..args.first_seed.saturating_add(args.tries);
+    let classic: Vec<ClassicOutcome> = seeds
         .into_par_iter()
         .progress_with(crate::cli::progress::bar(args.tries, "classic rescues"))
         .map(run)
@@ -422,8 +428,8 @@ pub fn report(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> 
         std::fs::write(p, lines)?;
     }
     eprintln!("classic-report: idealized DS and SOG …");
-    let ds = run_case(Case::DirectionalSearch, 1, args.tries)?;
-    let sog = run_case(Case::SogCalibrated, 1, args.tries)?;
+    let ds = run_case(Case::DirectionalSearch, args.first_seed, args.tries)?;
+    let sog = run_case(Case::SogCalibrated, args.first_seed, args.tries)?;
     let of = |r: &[Rescue]| {
         Metrics::new(r.iter().map(|r| {
             (
@@ -452,8 +458,13 @@ pub fn report(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> 
         ("SOG", &of(&sog)),
     ];
     let command = format!(
-        "cargo run -p hal-sim --release -- classic-report --tries {} --out hal-sim/reports/classic.md",
-        args.tries
+        "cargo run -p hal-sim --release -- classic-report --tries {}{} --out {}",
+        args.tries,
+        crate::eval::sidecar::first_seed_flag(args.first_seed),
+        args.out.as_ref().map_or_else(
+            || "hal-sim/reports/classic.md".into(),
+            |p| p.display().to_string()
+        )
     );
     let mut r = format!("## Classic mode in the loop (`{command}`)\n\n{PROTOCOL}\n\n");
     r += "| metric (max / mean / median) |";
@@ -589,15 +600,16 @@ fn sidecar(
         "error_h_m_max_mean_median": stats(classic.iter().map(|o| o.error_h_m)),
         "steps_over_ideal_max_mean_median": ratio,
     });
-    let check = classic
-        .iter()
-        .filter(|o| o.seed <= crate::eval::sidecar::CHECK_SEEDS)
-        .map(|o| crate::eval::sidecar::record(o, &[]))
-        .collect::<anyhow::Result<_>>()?;
+    let check = crate::eval::sidecar::records(
+        classic
+            .iter()
+            .filter(|o| o.seed < args.first_seed + crate::eval::sidecar::CHECK_SEEDS),
+        &[],
+    )?;
     Ok(crate::eval::sidecar::Sidecar::new(
         "classic-report",
         command,
-        1,
+        args.first_seed,
         args.tries,
         summary,
         check,

@@ -2,10 +2,8 @@
 //! corrected tracks (rescuer colours), victims with 2σ ellipses and labels, and when the
 //! truth is known the true victims (black crosses) and true tracks (grey).
 use super::map::TeamMap;
-use crate::cli::demo::{ellipse_n, en, write_png};
-use crate::eval::plot::{self, FONT};
+use crate::eval::plot::{self, FONT, MapChart, ellipse, en, write_png};
 use anyhow::Result;
-use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use std::path::Path;
 
@@ -26,15 +24,10 @@ const COLOURS: [RGBColor; 4] = [
 ];
 const SIZE: u32 = 900;
 
-/// The chart every layer of the map is drawn on.
-type MapChart<'a, 'b> =
-    ChartContext<'a, BitMapBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
-
 /// Draws `map` (and `truth`) to a PNG at `path`.
 pub fn plot(map: &TeamMap, truth: Option<&TruthOverlay>, path: &Path) -> Result<()> {
     plot::fonts();
     let mut buf = vec![255u8; (SIZE * SIZE * 3) as usize];
-    let (xr, yr) = ranges(map);
     {
         let root = BitMapBackend::with_buffer(&mut buf, (SIZE, SIZE)).into_drawing_area();
         root.fill(&WHITE).map_err(plot::err)?;
@@ -46,18 +39,7 @@ pub fn plot(map: &TeamMap, truth: Option<&TruthOverlay>, path: &Path) -> Result<
             map.options.strip_half_width_m
         );
         let root = root.titled(&title, (FONT, 20)).map_err(plot::err)?;
-        let mut chart = ChartBuilder::on(&root)
-            .margin(12)
-            .x_label_area_size(40)
-            .y_label_area_size(55)
-            .build_cartesian_2d(xr, yr)
-            .map_err(plot::err)?;
-        plot::draw_axes(
-            &mut chart,
-            ("east (m)", "north (m)"),
-            &|v| format!("{v:.0}"),
-            &|v| format!("{v:.0}"),
-        )?;
+        let mut chart = plot::map_chart(&root, view(map), 12, 55)?;
         draw_coverage(map, &mut chart)?;
         if let Some(t) = truth {
             draw_true_tracks(t, &mut chart)?;
@@ -74,23 +56,14 @@ pub fn plot(map: &TeamMap, truth: Option<&TruthOverlay>, path: &Path) -> Result<
 }
 
 /// A square view around every track and victim with room for the strips.
-fn ranges(map: &TeamMap) -> (std::ops::Range<f64>, std::ops::Range<f64>) {
+fn view(map: &TeamMap) -> (std::ops::Range<f64>, std::ops::Range<f64>) {
     let mut pts: Vec<(f64, f64)> = map
         .rescuers
         .iter()
         .flat_map(|r| r.track.iter().chain(&r.dr_track).map(|p| en([p[1], p[2]])))
         .collect();
     pts.extend(map.victims.iter().filter_map(|v| v.p.map(en)));
-    let (x0, x1, y0, y1) = pts.iter().fold(
-        (f64::MAX, f64::MIN, f64::MAX, f64::MIN),
-        |(a, b, c, d), &(x, y)| (a.min(x), b.max(x), c.min(y), d.max(y)),
-    );
-    let span = ((x1 - x0).max(y1 - y0).max(10.0) + 2.0 * map.options.strip_half_width_m) * 1.05;
-    let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
-    (
-        cx - 0.5 * span..cx + 0.5 * span,
-        cy - 0.5 * span..cy + 0.5 * span,
-    )
+    plot::map_view(&pts, 2.0 * map.options.strip_half_width_m, 1.05, 1.0)
 }
 
 /// The covered area: the union of the strips, 1 m cells in light grey.
@@ -167,7 +140,7 @@ fn draw_victims(map: &TeamMap, chart: &mut MapChart<'_, '_>) -> Result<()> {
         let (Some(p), Some(c)) = (v.p, v.cov) else {
             continue;
         };
-        let ring = PathElement::new(ellipse_n(p, c, 36), RED.stroke_width(2));
+        let ring = PathElement::new(ellipse(p, c, 36), RED.stroke_width(2));
         let ring = chart
             .draw_series(std::iter::once(ring))
             .map_err(plot::err)?;

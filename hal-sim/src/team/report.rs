@@ -13,21 +13,24 @@ use std::path::PathBuf;
 /// `hal-sim team-report`.
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// Markdown output; the first scenario's map goes beside it as `team.png`.
-    /// (Required: the checked-in report is `hal-sim/reports/team.md`.)
+    /// Markdown output, with its sidecar X.json; the first scenario's map goes beside it
+    /// as `team.png`. (Required: the checked-in report is `hal-sim/reports/team.md`.)
     #[arg(long)]
     pub out: PathBuf,
     /// Scenarios as `seed:rescuers:victims[:field_m]` (field side 60 m unless given).
     #[arg(
         long,
         value_delimiter = ',',
-        default_value = "1:3:4,2:2:3,3:4:5,4:3:3,5:2:2,6:4:4,7:3:5,8:2:4,9:4:3,10:3:2,11:4:5,12:2:5,21:3:4:150,22:4:5:150,23:2:3:150,24:3:3:150"
+        default_value = DEFAULT_SCENARIOS
     )]
     pub scenarios: Vec<String>,
 }
 
+/// The checked-in report's scenarios.
+const DEFAULT_SCENARIOS: &str = "1:3:4,2:2:3,3:4:5,4:3:3,5:2:2,6:4:4,7:3:5,8:2:4,9:4:3,10:3:2,11:4:5,12:2:5,21:3:4:150,22:4:5:150,23:2:3:150,24:3:3:150";
+
 /// One victim scored.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct VictimScore {
     /// Its id in the joint map.
     pub id: usize,
@@ -46,7 +49,7 @@ pub struct VictimScore {
 }
 
 /// One team scenario scored.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct Score {
     /// Victims (those in the joint map and those only heard).
     pub victims: Vec<VictimScore>,
@@ -439,20 +442,60 @@ fn scenario_section(
     rows
 }
 
+/// Scenarios whose scores the sidecar stores (the staleness test re-runs them).
+const CHECK_SCENARIOS: usize = 1;
+
+/// A scenario's record for the sidecar: its spec and its score.
+fn record(spec: &str, score: &Score) -> anyhow::Result<serde_json::Value> {
+    Ok(serde_json::json!({
+        "scenario": spec,
+        "score": crate::eval::sidecar::record(score, &[])?,
+    }))
+}
+
+/// Re-runs one sidecar record (its scenario) with the current code.
+pub fn rerun(record: &serde_json::Value) -> anyhow::Result<serde_json::Value> {
+    let spec = record["scenario"]
+        .as_str()
+        .ok_or_else(|| anyhow::anyhow!("record without a scenario"))?;
+    let (_, _, score) = run_one(&parse(spec)?, &MapOptions::default())?;
+    self::record(spec, &score)
+}
+
+/// The command that writes the report.
+fn command(args: &Args) -> String {
+    let default = Args::default_scenarios();
+    let mut c = String::from("cargo sim team-report");
+    if args.scenarios != default {
+        c.push_str(&format!(" --scenarios {}", args.scenarios.join(",")));
+    }
+    format!("{c} --out {}", args.out.display())
+}
+
+impl Args {
+    /// The default `--scenarios` (the checked-in report's).
+    fn default_scenarios() -> Vec<String> {
+        DEFAULT_SCENARIOS.split(',').map(String::from).collect()
+    }
+}
+
 /// Runs the report.
 pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
     let opt = MapOptions::default();
-    let started = std::time::Instant::now();
+    let mut check = Vec::new();
     let mut rows = String::new();
     let mut single = String::new();
     let mut tot = Totals::default();
     let mut alone: Vec<Alone> = Vec::new();
     let mut ratios: Vec<f64> = Vec::new();
     let png = args.out.with_file_name("team.png");
+    let bar = crate::cli::progress::bar(args.scenarios.len() as u64, "team scenarios");
     for (k, s) in args.scenarios.iter().enumerate() {
         let cfg = parse(s)?;
-        eprintln!("scenario {s}");
         let (sim, runs, m, sc) = run_one_full(&cfg, &opt)?;
+        if k < CHECK_SCENARIOS {
+            check.push(record(s, &sc)?);
+        }
         alone.extend(leave_others_out(&sim, &runs, &m, &opt)?);
         if k == 0 {
             plot::plot(&m, Some(&overlay(&sim)), &png)?;
@@ -460,22 +503,21 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
         rows.push_str(&scenario_section(s, &cfg, &m, &sc, &opt));
         ratios.extend(sc.victims.iter().filter_map(|v| v.moment_ratio));
         tot.add(s, &sc, &mut single);
+        bar.inc(1);
     }
+    bar.finish_and_clear();
     let mut md = String::new();
     let _ = writeln!(
         md,
         "# Team map: several rescuers' logs joined at shared beacons\n"
     );
-    let _ = writeln!(
-        md,
-        "Regenerate with\n\n    cargo run -p hal-sim --release -- team-report --out hal-sim/reports/team.md\n"
-    );
+    let command = command(args);
+    let _ = writeln!(md, "Regenerate with\n\n    {command}\n");
     let _ = writeln!(md, "{METHOD}");
     let _ = writeln!(
         md,
-        "## Summary ({} scenarios, {:.0} s)\n\n| quantity | value |\n|---|---|\n| victims localized by ≥ 2 rescuers: mean own-map error → joint-map error | {:.2} m → {:.2} m (n = {}) |\n| victims localized by one rescuer: own-map error → joint-map error | {:.2} m → {:.2} m (n = {}) |\n| rescuer tracks: mean Cartesian error dead-reckoned → corrected | {:.2} m → {:.2} m (n = {}; {} worse after correction) |\n| tracks associated right across logs | {}/{} ({} wrong merges of two transmitters) |\n",
+        "## Summary ({} scenarios)\n\n| quantity | value |\n|---|---|\n| victims localized by ≥ 2 rescuers: mean own-map error → joint-map error | {:.2} m → {:.2} m (n = {}) |\n| victims localized by one rescuer: own-map error → joint-map error | {:.2} m → {:.2} m (n = {}) |\n| rescuer tracks: mean Cartesian error dead-reckoned → corrected | {:.2} m → {:.2} m (n = {}; {} worse after correction) |\n| tracks associated right across logs | {}/{} ({} wrong merges of two transmitters) |\n",
         args.scenarios.len(),
-        started.elapsed().as_secs_f64(),
         mean(tot.multi_own, tot.n_multi),
         mean(tot.multi_joint, tot.n_multi),
         tot.n_multi,
@@ -532,7 +574,30 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
         md,
         "![team map of the first scenario](team.png)\n\n{PNG}\n\n{field}\n## Per scenario\n{rows}\n{LIMITS}"
     );
-    std::fs::write(&args.out, &md).with_context(|| format!("writing {}", args.out.display()))?;
+    let summary = serde_json::json!({
+        "scenarios": args.scenarios.len(),
+        "shared_victims": tot.n_multi,
+        "shared_own_m": mean(tot.multi_own, tot.n_multi),
+        "shared_joint_m": mean(tot.multi_joint, tot.n_multi),
+        "single_victims": tot.n_single,
+        "single_own_m": mean(tot.single_own, tot.n_single),
+        "single_joint_m": mean(tot.single_joint, tot.n_single),
+        "tracks": tot.n_tracks,
+        "track_dr_m": mean(tot.dr, tot.n_tracks),
+        "track_corrected_m": mean(tot.corrected, tot.n_tracks),
+        "tracks_worse": tot.worse,
+        "association_right_of_all": [tot.assoc.0, tot.assoc.1],
+        "wrong_merges": tot.merged,
+    });
+    let side = crate::eval::sidecar::Sidecar::new(
+        "team-report",
+        &command,
+        0,
+        args.scenarios.len() as u64,
+        summary,
+        check,
+    );
+    crate::eval::sidecar::write(&args.out, &md, side)?;
     writeln!(out, "{}", args.out.display())?;
     Ok(())
 }

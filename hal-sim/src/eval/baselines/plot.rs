@@ -1,8 +1,7 @@
 //! Line plots of the baselines' reports (PNG) in the figures' common style
 //! ([`crate::eval::plot`]: embedded font, named axes with units, ticks, legend), on linear or
 //! logarithmic axes (errors that span decades are shown on a log axis).
-use crate::cli::demo::write_png;
-use crate::eval::plot::{self, FONT};
+use crate::eval::plot::{self, FONT, write_png};
 use anyhow::Result;
 use plotters::coord::Shift;
 use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};

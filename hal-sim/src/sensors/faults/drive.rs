@@ -131,7 +131,22 @@ pub fn drive(
     truth: Option<&Session>,
     display_every_s: f64,
 ) -> anyhow::Result<Trace> {
-    let cfg = app_config(&session.header, receiver);
+    drive_with(
+        session,
+        app_config(&session.header, receiver),
+        truth,
+        display_every_s,
+    )
+}
+
+/// [`drive`] with the application's configuration given (e.g. another dead-reckoning
+/// noise, for an ablation).
+pub fn drive_with(
+    session: &Session,
+    cfg: firmware::app::AppConfig,
+    truth: Option<&Session>,
+    display_every_s: f64,
+) -> anyhow::Result<Trace> {
     let mut rx =
         Box::new(Receiver::new(cfg).map_err(|e| anyhow::anyhow!("configuration refused: {e:?}"))?);
     let truth = truth.map(truth_offsets).unwrap_or_default();
