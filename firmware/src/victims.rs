@@ -63,7 +63,7 @@ pub const FEW_PULSES: u32 = 5;
 /// few of the longest periods, longer than the front end keeps an unconfirmed track.
 pub const SHORT_LOST_S: f32 = 6.0;
 /// A pulse withheld as an overlap within this time (s) keeps silent established victims
-/// listed (several of the longest periods).
+/// listed (several of the longest periods; `docs/decisions/overlap-thresholds.md`).
 pub const OVERLAP_HOLD_S: f32 = 5.0;
 /// A listed victim silent at least this long (s) may take a new front-end track whose
 /// pulse its mixture explains ([`VictimBank::reassociate`]): longer than the longest

@@ -1,6 +1,6 @@
 //! `hal-sim`: the receiver's world on a PC.
 use anyhow::{Context, Result};
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 use hal_sim::cli::{demo, field_map};
 use hal_sim::eval::{accuracy, budget_data};
 use hal_sim::io::receiver_config::ReceiverConfig;
@@ -158,7 +158,9 @@ fn run_replay(log: &Path, receiver: Option<&Path>, strict: bool) -> Result<()> {
 
 fn main() -> Result<()> {
     let stdout = std::io::stdout();
-    match Cli::parse().command {
+    let matches = hal_sim::cli::help::wrapped(Cli::command()).get_matches();
+    let cli = Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
+    match cli.command {
         Command::Simulate(args) => simulate::run(&args, &mut stdout.lock()),
         Command::Replay {
             log,

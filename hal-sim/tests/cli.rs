@@ -160,7 +160,7 @@ fn every_seeded_report_takes_tries_and_first_seed_and_refuses_zero_tries() {
 }
 
 #[test]
-fn help_has_no_rustdoc_links() {
+fn help_is_wrapped_and_has_no_rustdoc_links() {
     let out = hal_sim(&["--help"]);
     let top = text(&out.stdout);
     let mut commands: Vec<String> = top
@@ -168,6 +168,7 @@ fn help_has_no_rustdoc_links() {
         .skip_while(|l| !l.starts_with("Commands:"))
         .skip(1)
         .take_while(|l| !l.trim().is_empty())
+        .filter(|l| l.starts_with("  ") && !l.starts_with("   "))
         .filter_map(|l| l.split_whitespace().next().map(String::from))
         .filter(|c| c != "help")
         .collect();
@@ -183,6 +184,10 @@ fn help_has_no_rustdoc_links() {
             assert!(out.status.success(), "{args:?}");
             let help = text(&out.stdout);
             for line in help.lines() {
+                assert!(
+                    line.chars().count() <= 100,
+                    "{args:?}: a help line over 100 columns:\n{line}"
+                );
                 assert!(
                     !line.contains("[`") && !line.contains("`]"),
                     "{args:?}: a rustdoc link in the help:\n{line}"

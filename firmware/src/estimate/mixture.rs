@@ -323,6 +323,12 @@ fn split_one(c: &Component, ratio: f32) -> Option<[Component; 3]> {
         .sum();
     // P' = P − spread·v vᵀ stays PSD because v vᵀ ≤ P (Cauchy–Schwarz) and spread < 1.
     let p_new = p - v * v.transpose() * spread;
+    // … in exact arithmetic: in f32, with a variance of 10⁵ rad² beside ones of 10⁻² m²
+    // (an attitude input far wider than π), v's rows lose the digits that keep it so and
+    // a variance came out negative (fuzz `estimator_step`, crash-afc5f33d…). Not split then.
+    if (0..p_new.nrows()).any(|i| p_new[(i, i)].is_nan() || p_new[(i, i)] < 0.0) {
+        return None;
+    }
     let mut parts = [*c; 3];
     for (k, part) in parts.iter_mut().enumerate() {
         let (w, mu) = (SPLIT_W[k], SPLIT_MU[k]);

@@ -95,7 +95,8 @@ impl Default for FrontendConfig {
             // is ≤ the dominance ratio of the multi-victim rule (1 %, ICRA eq. 10).
             max_residual_fraction: super::DOMINANCE_RATIO * super::DOMINANCE_RATIO,
             // Same-carrier overlaps show only in quadrature; 1e-3 ≈ sin²(1.8°) leaves room
-            // for the channels' phase-calibration error on a real board.
+            // for the channels' phase-calibration error on a real board. Both thresholds:
+            // docs/decisions/overlap-thresholds.md.
             max_quadrature_fraction: 1e-3,
             calibration: Calibration::default(),
             range: Range::HIGH_G1,

@@ -9,7 +9,8 @@
 //! and in quadrature √(0.03² + 0.01²) = 1.054 · 0.03, a 5 % inflation). Such a pulse is
 //! passed on with its σ inflated by the bound; a comparable overlap is withheld.
 
-/// Largest interferer/dominant amplitude ratio for which an overlapped pulse is kept.
+/// Largest interferer/dominant amplitude ratio for which an overlapped pulse is kept
+/// (measured: `docs/decisions/overlap-thresholds.md`).
 pub const DOMINANCE_RATIO: f32 = 0.01;
 
 /// What to do with an overlapped pulse.

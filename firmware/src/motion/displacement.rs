@@ -68,7 +68,8 @@ impl Displacement {
     }
 }
 
-/// Noise model of the dead reckoning between pulses.
+/// Noise model of the dead reckoning between pulses. The floors' values and what they
+/// were measured against: `docs/decisions/pdr-noise-floors.md`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PdrNoise {
     /// Relative σ of one step's length around the model (step-to-step variation).

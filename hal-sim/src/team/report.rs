@@ -17,11 +17,13 @@ pub struct Args {
     /// as `team.png`. (Required: the checked-in report is `hal-sim/reports/team.md`.)
     #[arg(long)]
     pub out: PathBuf,
-    /// Scenarios as `seed:rescuers:victims[:field_m]` (field side 60 m unless given).
+    /// Scenarios as `seed:rescuers:victims[:field_m]` (field side 60 m unless given), comma
+    /// separated; by default the checked-in report's 16.
     #[arg(
         long,
         value_delimiter = ',',
-        default_value = DEFAULT_SCENARIOS
+        default_value = DEFAULT_SCENARIOS,
+        hide_default_value = true
     )]
     pub scenarios: Vec<String>,
 }
