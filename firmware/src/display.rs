@@ -34,8 +34,10 @@ use embedded_graphics::prelude::*;
 use embedded_graphics::primitives::{Circle, Line, PrimitiveStyle, Rectangle, Triangle};
 use embedded_graphics::text::{Baseline, Text};
 
-use crate::app::{DisplayModel, VictimRow};
 use crate::guidance::{HeightPrompt, Status};
+
+mod model;
+pub use model::{DisplayModel, VictimRow};
 
 /// Screen width, pixels.
 pub const WIDTH: u32 = 128;

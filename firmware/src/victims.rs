@@ -38,8 +38,10 @@ use crate::estimate::{
     Attitude, Displacement, EstimateError, Estimator, Pulse, SogConfig, SogFilter, StepReport,
 };
 use crate::frame::{Rpy, compose_rpy, rotation_from_rpy, rotation_partials};
-use crate::motion::PdrNoise;
-use nalgebra::SMatrix;
+use crate::motion::{Mat6, PdrNoise};
+
+/// The mark button, a driver ([`crate::drivers::button`]); re-exported for the board binary.
+pub use crate::drivers::MarkButton;
 
 /// Victims followed at once (the front end may track more transmitters, see
 /// [`crate::frontend::MAX_TRACKS`]; its dormant tracks keep their ids).
@@ -77,8 +79,6 @@ pub const EVICT_SILENT_S: f32 = 10.0;
 /// many as the front end keeps tracks ([`crate::frontend::MAX_TRACKS`]), whose ids
 /// outlive a victim's slot (dormant tracks, re-attachment).
 pub const MARKED_SOURCES: usize = crate::frontend::MAX_TRACKS;
-
-type Mat6 = SMatrix<f32, 6, 6>;
 
 /// The composition `a ⊕ b` of two consecutive motions (IROS 2006 eq. 5–6): `a` from
 /// `R_i` to `R_j`, `b` from `R_j` to `R_k`; the result goes from `R_i` to `R_k`.
@@ -635,52 +635,6 @@ impl VictimBank {
             .filter(|(_, v)| !v.marked && v.last_t >= since)
             .filter_map(|(i, v)| v.position_now().map(|p| (i, p.xy().norm())))
             .min_by(|a, b| a.1.total_cmp(&b.1))
-    }
-}
-
-/// The mark button: an active-low push button (pull-up, closes to ground) read through
-/// `embedded_hal::digital::InputPin` and debounced by polling.
-#[derive(Debug)]
-pub struct MarkButton<P> {
-    pin: P,
-    /// Consecutive polls that read "pressed".
-    low: u8,
-    /// The current press was already reported.
-    reported: bool,
-}
-
-impl<P: embedded_hal::digital::InputPin> MarkButton<P> {
-    /// Polls "pressed" in a row that make a press (30 ms at the 100 Hz IMU tick: longer
-    /// than a switch's bounce, far shorter than a deliberate press).
-    pub const DEBOUNCE_POLLS: u8 = 3;
-
-    /// A button on `pin`.
-    pub fn new(pin: P) -> Self {
-        Self {
-            pin,
-            low: 0,
-            reported: false,
-        }
-    }
-
-    /// Reads the pin once; `true` exactly once per press. A read error counts as released.
-    pub fn poll(&mut self) -> bool {
-        if self.pin.is_low().unwrap_or(false) {
-            self.low = self.low.saturating_add(1);
-            if self.low >= Self::DEBOUNCE_POLLS && !self.reported {
-                self.reported = true;
-                return true;
-            }
-        } else {
-            self.low = 0;
-            self.reported = false;
-        }
-        false
-    }
-
-    /// Gives the pin back.
-    pub fn release(self) -> P {
-        self.pin
     }
 }
 

@@ -1,35 +1,6 @@
 use super::*;
 use crate::frame::rpy_from_rotation;
 
-#[test]
-fn mark_button_debounces_and_reports_once_per_press() {
-    use embedded_hal_mock::eh1::digital::{Mock, State, Transaction};
-    let reads = [
-        State::Low,  // bounce
-        State::High, //
-        State::Low,
-        State::Low,
-        State::Low, // pressed: reported here
-        State::Low,
-        State::Low, // held: not again
-        State::High,
-        State::Low,
-        State::Low,
-        State::Low, // second press
-    ];
-    let tx: Vec<Transaction> = reads.iter().map(|s| Transaction::get(*s)).collect();
-    let mut b = MarkButton::new(Mock::new(&tx));
-    let got: Vec<bool> = reads.iter().map(|_| b.poll()).collect();
-    let presses: Vec<usize> = got
-        .iter()
-        .enumerate()
-        .filter(|(_, p)| **p)
-        .map(|(i, _)| i)
-        .collect();
-    assert_eq!(presses, vec![4, 10]);
-    b.release().done();
-}
-
 fn disp(t: [f32; 3], r: [f32; 3], st: f32, sr: f32) -> Displacement {
     Displacement::with_sigmas(Vec3::from(t), Rpy::from(r), st, sr)
 }

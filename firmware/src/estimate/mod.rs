@@ -38,8 +38,7 @@ use crate::frame::Rpy;
 use crate::{Mat3, Vec3};
 use nalgebra::SMatrix;
 
-/// A 6×6 `f32` matrix: the covariance of a [`Displacement`] (translation first, then rotation).
-pub type Mat6 = SMatrix<f32, 6, 6>;
+pub use crate::motion::Mat6;
 
 /// One received beacon pulse.
 #[derive(Debug, Clone, Copy, PartialEq)]

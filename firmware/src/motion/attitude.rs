@@ -18,15 +18,13 @@
 //! Gains with zeroed rows are not Kalman-optimal, so the covariance is updated in Joseph
 //! form, which stays valid (and symmetric positive semi-definite) for any gain.
 
+use super::Mat6;
 use crate::frame::{Rpy, compose_rpy, rotation_from_rpy, rpy_from_rotation, wrap_pi};
 use crate::{Mat3, Vec3};
 use nalgebra::{Quaternion, SMatrix, UnitQuaternion};
 
 /// Standard gravity, m/s² (the spec's `[0, 0, -9.80665]` in W).
 pub const GRAVITY: f32 = 9.80665;
-
-/// A 6×6 `f32` matrix (error-state covariance).
-type Mat6 = SMatrix<f32, 6, 6>;
 
 /// Magnetometer calibration: `m = soft_iron · (m_raw − hard_iron)`.
 #[derive(Debug, Clone, Copy, PartialEq)]

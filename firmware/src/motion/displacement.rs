@@ -21,7 +21,8 @@ use crate::frame::{Rpy, compose_rpy, rot_z, rpy_from_rotation, wrap_pi};
 use crate::{Mat3, Vec3};
 use nalgebra::SMatrix;
 
-/// A 6×6 `f32` matrix: covariance of `[translation; rotation]`.
+/// A 6×6 `f32` matrix: the covariance of `[translation; rotation]` (a displacement's, and the
+/// attitude filter's error state); the one definition, re-exported by `estimate`.
 pub type Mat6 = SMatrix<f32, 6, 6>;
 
 /// The receiver's motion between two pulses (IROS 2006 eq. 4).

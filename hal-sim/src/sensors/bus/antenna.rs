@@ -47,6 +47,26 @@ pub fn apply_range<A: AnalogInput>(
 }
 
 impl<A: AnalogInput> Antenna<A> {
+    /// [`Antenna::new`] with the reference board's ADC configuration on a fresh clock at 0,
+    /// which is returned beside it (the caller steps it).
+    pub fn on_reference_board(
+        input: A,
+        switch: RangeSwitch,
+        fe_cfg: FrontendConfig,
+        noise_seed: u64,
+    ) -> Result<(Self, SimClock)> {
+        let clock = SimClock::new();
+        let antenna = Self::new(
+            input,
+            switch,
+            clock.clone(),
+            &REFERENCE.adc.config,
+            fe_cfg,
+            noise_seed,
+        )?;
+        Ok((antenna, clock))
+    }
+
     /// Powers up the emulated ADC converting `input` (whose range switch is `switch`) on
     /// `clock` with the reference board's input noise (drawn from `noise_seed`), resets
     /// and configures it with `adc_cfg`, and sets it to the DSP's starting setting.

@@ -8,7 +8,6 @@
 //! a common scale of all three gains) and each jig pose's orientation (0.5° per axis).
 //! The room's EMI is the field's background level (`σ_bkg`); the reference's field is
 //! ≈ 10⁵ times stronger, so it hardly matters.
-use super::SimClock;
 use super::ads131m04::F_CLKIN_HZ;
 use super::antenna::Antenna;
 use super::if_signal::{AnalogChain, AnalogInput, IF_HZ, RangeSwitch, sample_sigma};
@@ -180,12 +179,9 @@ impl Session<'_> {
             ranging: None,
             ..REFERENCE.frontend_config(held)
         };
-        let clock = SimClock::new();
-        let mut antenna = Antenna::new(
+        let (mut antenna, clock) = Antenna::on_reference_board(
             signal,
             switch,
-            clock.clone(),
-            &REFERENCE.adc.config,
             fe_cfg,
             self.seed ^ stream.rotate_left(32),
         )?;

@@ -17,7 +17,6 @@
 //! the pulse, `Σ|c_i|²/σ²`, χ² with 6 degrees of freedom on noise, non-central with
 //! `λ = |H|²/σ²` on a pulse, thresholded for the false-alarm rate over the independent
 //! cells it searches (frequency bins `2·80 Hz · 70 ms` × time positions `T / 70 ms`).
-use super::SimClock;
 use super::ads131m04::F_CLKIN_HZ;
 use super::antenna::Antenna;
 use super::if_signal::{AnalogInput, IF_HZ, RangeSwitch, sample_sigma};
@@ -190,15 +189,8 @@ pub fn probe_run(
         noise: ChaCha8Rng::seed_from_u64(seed),
         switch: switch.clone(),
     };
-    let clock = SimClock::new();
-    let mut antenna = Antenna::new(
-        signal,
-        switch,
-        clock.clone(),
-        &REFERENCE.adc.config,
-        fe_cfg,
-        seed ^ 0xADC_D37E,
-    )?;
+    let (mut antenna, clock) =
+        Antenna::on_reference_board(signal, switch, fe_cfg, seed ^ 0xADC_D37E)?;
     let mut reported = Vec::new();
     // 10 ms steps of the clock: the emulated ADC converts whatever is due.
     for k in 0..=(seconds * 100.0) as u64 {

@@ -6,7 +6,6 @@
 //! The transmitter is the standard's strongest the simulator draws (3e-2 A·m², see
 //! [`crate::world::transmitter::TransmitterSpec`]) pulsing 70 ms every 0.95 s; the receiver is
 //! still, at a fixed attitude, `depth` above it.
-use super::SimClock;
 use super::ads131m04::F_CLKIN_HZ;
 use super::antenna::Antenna;
 use super::if_signal::{AnalogInput, IF_HZ, RangeSwitch, sample_sigma};
@@ -104,15 +103,8 @@ pub fn near_run(
         noise: ChaCha8Rng::seed_from_u64(seed),
         switch: switch.clone(),
     };
-    let clock = SimClock::new();
-    let mut antenna = Antenna::new(
-        signal,
-        switch,
-        clock.clone(),
-        &REFERENCE.adc.config,
-        REFERENCE.frontend_config(cal),
-        seed ^ 0xADC,
-    )?;
+    let (mut antenna, clock) =
+        Antenna::on_reference_board(signal, switch, REFERENCE.frontend_config(cal), seed ^ 0xADC)?;
     let start = antenna.frontend.range();
     let mut pulses = Vec::new();
     for k in 0..=(seconds * 100.0) as u64 {
