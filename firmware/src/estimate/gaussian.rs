@@ -12,7 +12,17 @@ use crate::{Mat3, Vec3};
 use nalgebra::SMatrix;
 
 mod attitude;
-use attitude::{attitude_update, attitude_update_joseph};
+use attitude::attitude_update;
+
+/// How a measurement update forms the posterior covariance.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum CovarianceForm {
+    /// `P − V Vᵀ` with `V = P Hᵀ L⁻ᵀ` (`S = L Lᵀ`): equal to the Joseph form for the
+    /// optimal gain and the cheaper one, but the subtraction can lose digits in `f32`.
+    Short,
+    /// Joseph's `(I−KH) P (I−KH)ᵀ + K R Kᵀ`: a sum of PSD terms, the fallback.
+    Joseph,
+}
 
 /// Floats in a packed 10×10 covariance.
 pub(crate) const NP: usize = NX * (NX + 1) / 2;
@@ -233,10 +243,11 @@ fn well_conditioned(p: &StateMat) -> bool {
 }
 
 /// One component's whole step: [`step_gaussian`] then, when `attitude` is given,
-/// [`attitude_update`] with `(Ψ measured, its covariance)`. Both use the short-form
-/// covariance update `P − V Vᵀ`; when the result is not [`well_conditioned`] (the
-/// subtraction lost too many digits in `f32`), the step is redone in the Joseph form
-/// ([`step_gaussian_joseph`], [`attitude_update_joseph`]), a sum of PSD terms.
+/// [`attitude_update`] with `(Ψ measured, its covariance)`. Both use the
+/// [`CovarianceForm::Short`] update `P − V Vᵀ`; when the result is not
+/// [`well_conditioned`] (the subtraction lost too many digits in `f32`), the step is
+/// redone in the [`CovarianceForm::Joseph`] form ([`step_gaussian_joseph_at`]), a sum of
+/// PSD terms.
 pub(crate) fn step_component(
     inp: &StepInput,
     x: &StateVec,
@@ -278,11 +289,7 @@ fn step_component_iekf(
 ) -> Result<(StateVec, StateMat, Innovation), ComponentFailure> {
     let mut lin = None;
     if let Ok((x1, p1, inn, lp)) = step_gaussian_iterated(inp, x, p, iters) {
-        let out = match attitude {
-            Some((z, r)) => attitude_update(&x1, &p1, z, r).map(|(x2, p2)| (x2, p2, inn)),
-            None => Ok((x1, p1, inn)),
-        };
-        if let Ok(out) = out
+        if let Ok(out) = then_attitude((x1, p1, inn), attitude, CovarianceForm::Short)
             && well_conditioned(&out.1)
         {
             return Ok(out);
@@ -301,16 +308,11 @@ fn step_component_plain(
     p: &StateMat,
     attitude: Option<(&Vec3, &Mat3)>,
 ) -> Result<(StateVec, StateMat, Innovation), ComponentFailure> {
-    if let Ok((x1, p1, inn)) = step_gaussian(inp, x, p) {
-        let out = match attitude {
-            Some((z, r)) => attitude_update(&x1, &p1, z, r).map(|(x2, p2)| (x2, p2, inn)),
-            None => Ok((x1, p1, inn)),
-        };
-        if let Ok(out) = out
-            && well_conditioned(&out.1)
-        {
-            return Ok(out);
-        }
+    if let Ok(out) = step_gaussian(inp, x, p)
+        && let Ok(out) = then_attitude(out, attitude, CovarianceForm::Short)
+        && well_conditioned(&out.1)
+    {
+        return Ok(out);
     }
     step_component_joseph(inp, x, p, attitude, None).and_then(positive_variances)
 }
@@ -340,10 +342,20 @@ fn step_component_joseph(
     lin: Option<&LinPoint>,
 ) -> Result<(StateVec, StateMat, Innovation), ComponentFailure> {
     let q = inp.q_for(x);
-    let (x1, p1, inn) =
+    let out =
         step_gaussian_joseph_at(x, p, &inp.u, &inp.a, &q, &inp.z, inp.r_var, lin, inp.signed)?;
+    then_attitude(out, attitude, CovarianceForm::Joseph)
+}
+
+/// A pulse update's `(x, P, innovation)` followed, when `attitude` is given, by the
+/// attitude update in the same covariance `form`.
+fn then_attitude<T>(
+    (x1, p1, inn): (StateVec, StateMat, T),
+    attitude: Option<(&Vec3, &Mat3)>,
+    form: CovarianceForm,
+) -> Result<(StateVec, StateMat, T), ComponentFailure> {
     match attitude {
-        Some((z, r)) => attitude_update_joseph(&x1, &p1, z, r).map(|(x2, p2)| (x2, p2, inn)),
+        Some((z, r)) => attitude_update(&x1, &p1, z, r, form).map(|(x2, p2)| (x2, p2, inn)),
         None => Ok((x1, p1, inn)),
     }
 }
@@ -402,9 +414,9 @@ pub(crate) fn predict_component(
     let x1 = finish(x1, &p1, 0.0)?;
     let out = match attitude {
         None => (x1, p1),
-        Some((z, r)) => match attitude_update(&x1, &p1, z, r) {
+        Some((z, r)) => match attitude_update(&x1, &p1, z, r, CovarianceForm::Short) {
             Ok(out) if well_conditioned(&out.1) => out,
-            _ => attitude_update_joseph(&x1, &p1, z, r)?,
+            _ => attitude_update(&x1, &p1, z, r, CovarianceForm::Joseph)?,
         },
     };
     positive_variances((out.0, out.1, ())).map(|(x, p, ())| (x, p))

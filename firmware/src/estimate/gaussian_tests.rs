@@ -362,8 +362,8 @@ fn attitude_update_is_the_linear_kalman_update_with_wrapped_yaw() {
     let r = Mat3::from_diagonal(&Vec3::new(4e-4, 4e-4, 2.5e-3));
     // Yaw measured just across the ±π cut: the innovation is +0.1, not −2π + 0.1.
     let z = Vec3::new(x[0] + 0.01, x[1] - 0.02, wrap_pi(3.2));
-    let (x1, p1) = attitude_update(&x, &p, &z, &r).unwrap();
-    let (xj, pj) = attitude_update_joseph(&x, &p, &z, &r).unwrap();
+    let (x1, p1) = attitude_update(&x, &p, &z, &r, CovarianceForm::Short).unwrap();
+    let (xj, pj) = attitude_update(&x, &p, &z, &r, CovarianceForm::Joseph).unwrap();
     assert!((x1 - xj).abs().max() < 1e-5 && (p1 - pj).abs().max() < 1e-5 * p.abs().max());
     // f64 reference: K = P Hᵀ (H P Hᵀ + R)⁻¹, P' = (I − K H) P.
     let (p64, r64) = (p.cast::<f64>(), r.cast::<f64>());

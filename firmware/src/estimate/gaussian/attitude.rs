@@ -1,7 +1,7 @@
 //! The absolute-attitude measurement update of one Gaussian (the IMU's roll, pitch and
-//! yaw, a linear measurement of `Ψ`), short and Joseph form.
+//! yaw, a linear measurement of `Ψ`), in either covariance form.
 
-use super::{ComponentFailure, cholesky3, finish, lower_inverse3, sub_outer};
+use super::{ComponentFailure, CovarianceForm, cholesky3, finish, lower_inverse3, sub_outer};
 use crate::estimate::model::{I_RPY, NX, StateMat, StateVec};
 use crate::frame::wrap_pi;
 use crate::{Mat3, Vec3};
@@ -16,9 +16,13 @@ use nalgebra::SMatrix;
 /// accumulates without bound, and through `p_T' = p_T − R(Ψ)·s·Δp` (eq. 7) that drift
 /// becomes position error. The IMU attitude is a direct, linear measurement of `Ψ`:
 /// `z = Ψ + v`, `v ~ N(0, R)`, `H = [I₃ 0]`, so the update is exact (no linearization):
-/// `S = P_ΨΨ + R = L Lᵀ`, `V = P_{·Ψ} L⁻ᵀ`, `K = V L⁻¹`, innovation `ν = wrap(z − Ψ)`
-/// (wrapped to (−π, π]), `P' = P − V Vᵀ` (= `P − K S Kᵀ`, the Joseph form's value for
-/// the optimal gain; see [`step_component`](super::step_component) for the fallback).
+/// `S = P_ΨΨ + R = L Lᵀ`, innovation `ν = wrap(z − Ψ)` (wrapped to (−π, π]), then by
+/// `form`:
+/// - [`CovarianceForm::Short`]: `V = P_{·Ψ} L⁻ᵀ`, `K = V L⁻¹`, `P' = P − V Vᵀ`
+///   (= `P − K S Kᵀ`, the Joseph form's value for the optimal gain);
+/// - [`CovarianceForm::Joseph`]: `K = P_{·Ψ} S⁻¹`,
+///   `P' = (I−KH) P (I−KH)ᵀ + K R Kᵀ` (see [`step_component`](super::step_component)
+///   for when it is used).
 ///
 /// The component weights are *not* multiplied by this measurement's likelihood: the
 /// attitude says nothing about where the transmitter is. Every component starts from
@@ -31,6 +35,7 @@ pub(crate) fn attitude_update(
     p: &StateMat,
     z: &Vec3,
     r: &Mat3,
+    form: CovarianceForm,
 ) -> Result<(StateVec, StateMat), ComponentFailure> {
     let p_xa: SMatrix<f32, NX, 3> = p.fixed_columns::<3>(I_RPY).into_owned();
     let mut s: Mat3 = p_xa.fixed_rows::<3>(I_RPY).into_owned() + r;
@@ -38,36 +43,27 @@ pub(crate) fn attitude_update(
     let l = cholesky3(&s).map_err(|_| ComponentFailure::NotPositiveDefinite)?;
     let l_inv = lower_inverse3(&l);
     let nu = Vec3::from_fn(|i, _| wrap_pi(z[i] - x[I_RPY + i]));
-    let v: SMatrix<f32, NX, 3> = p_xa * l_inv.transpose();
-    let p_new = sub_outer(p, &v);
-    let x_new = finish(x + v * (l_inv * nu), &p_new, 0.0)?;
-    Ok((x_new, p_new))
-}
-
-/// [`attitude_update`] in the Joseph form `P' = (I−KH) P (I−KH)ᵀ + K R Kᵀ`.
-pub(crate) fn attitude_update_joseph(
-    x: &StateVec,
-    p: &StateMat,
-    z: &Vec3,
-    r: &Mat3,
-) -> Result<(StateVec, StateMat), ComponentFailure> {
-    let p_xa: SMatrix<f32, NX, 3> = p.fixed_columns::<3>(I_RPY).into_owned();
-    let mut s: Mat3 = p_xa.fixed_rows::<3>(I_RPY).into_owned() + r;
-    s = (s + s.transpose()) * 0.5;
-    let l = cholesky3(&s).map_err(|_| ComponentFailure::NotPositiveDefinite)?;
-    let l_inv = lower_inverse3(&l);
-    let s_inv = l_inv.transpose() * l_inv;
-    let nu = Vec3::from_fn(|i, _| wrap_pi(z[i] - x[I_RPY + i]));
-    let k: SMatrix<f32, NX, 3> = p_xa * s_inv;
-    // A = I − K H: K H only fills the orientation columns.
-    let mut a = StateMat::identity();
-    for j in 0..3 {
-        for i in 0..NX {
-            a[(i, I_RPY + j)] -= k[(i, j)];
+    match form {
+        CovarianceForm::Short => {
+            let v: SMatrix<f32, NX, 3> = p_xa * l_inv.transpose();
+            let p_new = sub_outer(p, &v);
+            let x_new = finish(x + v * (l_inv * nu), &p_new, 0.0)?;
+            Ok((x_new, p_new))
+        }
+        CovarianceForm::Joseph => {
+            let s_inv = l_inv.transpose() * l_inv;
+            let k: SMatrix<f32, NX, 3> = p_xa * s_inv;
+            // A = I − K H: K H only fills the orientation columns.
+            let mut a = StateMat::identity();
+            for j in 0..3 {
+                for i in 0..NX {
+                    a[(i, I_RPY + j)] -= k[(i, j)];
+                }
+            }
+            let mut p_new = a * p * a.transpose() + k * r * k.transpose();
+            p_new = (p_new + p_new.transpose()) * 0.5;
+            let x_new = finish(x + k * nu, &p_new, 0.0)?;
+            Ok((x_new, p_new))
         }
     }
-    let mut p_new = a * p * a.transpose() + k * r * k.transpose();
-    p_new = (p_new + p_new.transpose()) * 0.5;
-    let x_new = finish(x + k * nu, &p_new, 0.0)?;
-    Ok((x_new, p_new))
 }
