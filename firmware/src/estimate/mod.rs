@@ -128,6 +128,39 @@ impl Attitude {
             cov: Mat3::from_diagonal(&v),
         }
     }
+
+    /// The same attitude with every angle variance above π² (rad²) lowered to π², its
+    /// row and column scaled so that the correlations stay as they were.
+    ///
+    /// A σ of π already means "any direction" (the motion filter's own prior for an
+    /// unknown yaw): a larger Gaussian variance carries no more information, and the
+    /// linearized filter turns it into huge position spreads (a yaw variance of 2·10⁵
+    /// rad² once split a component into a negative variance). It is clamped rather than
+    /// refused because a search without a magnetometer starts at π² and grows past it.
+    pub fn bounded(&self) -> Self {
+        const MAX_VAR: f32 = core::f32::consts::PI * core::f32::consts::PI;
+        let f = self.cov.diagonal().map(|v| {
+            if v > MAX_VAR {
+                libm::sqrtf(MAX_VAR / v)
+            } else {
+                1.0
+            }
+        });
+        if f == Vec3::repeat(1.0) {
+            return *self;
+        }
+        let mut cov = self.cov;
+        for i in 0..3 {
+            for j in 0..3 {
+                cov[(i, j)] *= f[i] * f[j];
+            }
+            // Exactly π², not π² ± one rounding.
+            if f[i] < 1.0 {
+                cov[(i, i)] = MAX_VAR;
+            }
+        }
+        Self { rpy: self.rpy, cov }
+    }
 }
 
 /// The estimator's current belief about the victim.
@@ -232,8 +265,8 @@ pub enum EstimateError {
     #[error("innovation covariance not positive definite")]
     NotPositiveDefinite,
     /// A finite input outside any physical range (e.g. a displacement of 1e38 m between
-    /// two pulses, angles of 1e38 rad, variances beyond 1e6): refused before it can
-    /// overflow the filter's arithmetic.
+    /// two pulses, angles of 1e38 rad, displacement variances beyond 1e6): refused before
+    /// it can overflow the filter's arithmetic.
     #[error("input outside any physical range")]
     OutOfRange,
 }

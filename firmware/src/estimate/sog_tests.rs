@@ -343,6 +343,47 @@ fn bad_inputs_are_rejected_and_leave_the_state_unchanged() {
 }
 
 #[test]
+fn an_attitude_variance_beyond_pi_squared_counts_as_pi_squared() {
+    let pi2 = core::f32::consts::PI * core::f32::consts::PI;
+    // Roll–yaw correlation 0.3 (the motion filter's tilt and yaw errors are correlated).
+    let att_with = |yaw_var: f32| {
+        let mut cov = Mat3::from_diagonal(&Vec3::new(1e-4, 1e-4, yaw_var));
+        cov[(0, 2)] = 0.3 * libm::sqrtf(1e-4 * yaw_var);
+        cov[(2, 0)] = cov[(0, 2)];
+        Attitude {
+            rpy: Rpy::new(0.0, 0.1, 0.3),
+            cov,
+        }
+    };
+    // At or below π² nothing changes, bit for bit.
+    for v in [0.0, 0.05, pi2] {
+        assert_eq!(att_with(v).bounded(), att_with(v));
+    }
+    let h =
+        crate::dipole::field(&Vec3::new(-30.0, 5.0, 2.0), &Vec3::new(0.01, 0.0, 0.005)).unwrap();
+    let motion = Displacement::with_sigmas(Vec3::new(1.0, 0.0, 0.0), Rpy::zeros(), 0.03, 0.005);
+    let run = |att: &Attitude| {
+        let mut f = DefaultSog::new(SogConfig::default()).unwrap();
+        for k in 0..4 {
+            let m = if k == 0 { Displacement::zero() } else { motion };
+            f.step(&m, att, &Pulse { h, t: k as f32 }).unwrap();
+            check_mixture(&f).unwrap();
+        }
+        f
+    };
+    // 2·10⁵ rad² once split a component into a negative variance; 1e12 was refused.
+    for v in [10.0, 2e5, 1e6, 1e12] {
+        let b = att_with(v).bounded();
+        assert_eq!(b.cov[(2, 2)], pi2, "{v}");
+        assert_eq!(b.cov[(0, 0)], 1e-4);
+        let corr = b.cov[(0, 2)] / libm::sqrtf(b.cov[(0, 0)] * b.cov[(2, 2)]);
+        assert!((corr - 0.3).abs() < 1e-5, "{v}: correlation {corr}");
+        assert_eq!(b.cov[(0, 2)], b.cov[(2, 0)]);
+        assert_eq!(run(&att_with(v)), run(&b), "{v}");
+    }
+}
+
+#[test]
 fn weak_first_pulse_waits_and_reset_forgets() {
     let mut f = DefaultSog::new(SogConfig::default()).unwrap();
     let att = Attitude::with_sigmas(Rpy::zeros(), 0.01, 0.05);

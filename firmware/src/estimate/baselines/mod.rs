@@ -120,6 +120,7 @@ macro_rules! staged_step {
                 attitude,
                 pulse,
             )?;
+            let attitude = &attitude.bounded();
             if !$crate::estimate::Estimator::is_initialized(self) {
                 let outcome = $crate::estimate::StepOutcome::Initialized;
                 return Ok(self.try_initialize(attitude, &z, outcome));
