@@ -5,11 +5,10 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
 use firmware::drivers::imu::{ACC_LSB_M_S2, GYR_LSB_RAD_S, MAG_LSB_UT};
-use hal_sim::io::replay::{StreamOptions, replay_stream};
+use hal_sim::io::replay::replay_clean;
 use hal_sim::io::session::Record;
 use hal_sim::sensors::bus::run::{compare_pulses, simulate_bus_default};
 use hal_sim::world::scenario::{Preset, ScenarioConfig};
-use std::io::Cursor;
 
 fn config(preset: Preset, seed: u64, victims: usize, max_s: f64) -> ScenarioConfig {
     let mut c = ScenarioConfig::new(preset, seed);
@@ -302,21 +301,7 @@ fn a_bus_level_run_that_ranges_writes_gain_events_that_replay_strictly() {
         }
     }
 
-    let mut out = Vec::new();
-    let mut warnings = Vec::new();
-    let summary = replay_stream(
-        Cursor::new(text.as_bytes()),
-        &run.sim.receiver,
-        &mut out,
-        StreamOptions {
-            strict: true,
-            live: false,
-        },
-        |w| warnings.push(w.to_string()),
-        |_| {},
-    )
-    .unwrap();
-    assert!(warnings.is_empty(), "{warnings:?}");
+    let summary = replay_clean(text.as_bytes(), &run.sim.receiver).unwrap();
     let read = summary.read;
     assert_eq!((read.segments, read.malformed, read.seq_gaps), (1, 0, 0));
     let pulses = run.sim.session.pulses().count() as u64;
