@@ -54,6 +54,16 @@ pub type Frame = Framebuffer<
     { buffer_size::<BinaryColor>(WIDTH as usize, HEIGHT as usize) },
 >;
 
+/// The lit pixels of `frame`: what the tests measure of a screen.
+#[cfg(test)]
+pub(crate) fn lit(frame: &Frame) -> impl Iterator<Item = Point> + '_ {
+    use embedded_graphics::image::GetPixel;
+    frame
+        .bounding_box()
+        .points()
+        .filter(|p| frame.pixel(*p) == Some(BinaryColor::On))
+}
+
 /// Centre of the arrow box.
 pub const ARROW_CENTRE: Point = Point::new(31, 37);
 /// Arrow half-length, pixels.

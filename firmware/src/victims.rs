@@ -40,9 +40,6 @@ use crate::estimate::{
 use crate::frame::{Rpy, compose_rpy, rotation_from_rpy, rotation_partials};
 use crate::motion::{Mat6, PdrNoise};
 
-/// The mark button, a driver ([`crate::drivers::button`]); re-exported for the board binary.
-pub use crate::drivers::MarkButton;
-
 /// Victims followed at once (the front end may track more transmitters, see
 /// [`crate::frontend::MAX_TRACKS`]; its dormant tracks keep their ids).
 pub const MAX_VICTIMS: usize = 4;

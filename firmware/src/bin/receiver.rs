@@ -4,7 +4,11 @@
 //! session; over USART3 instead when no card logs).
 //!
 //! The application itself is [`firmware::app::Receiver`] — the very type `hal-sim`
-//! drives on the PC; this file only binds it to the hardware:
+//! drives on the PC — and the processing task's logic is [`firmware::board::process`]
+//! (tested on the host); this file and its modules only bind them to the hardware: the
+//! processing task's pins (`receiver/io.rs`), the shared I2C bus (`receiver/bus.rs`),
+//! the idle loop's log writer and watchdog feeder (`receiver/writer.rs`), the microSD
+//! card (`receiver/sd_card.rs`):
 //!
 //! | function | peripheral | MCU pins (Feather label) |
 //! |---|---|---|
@@ -64,61 +68,61 @@
 // place (`rebuild`), and read-only reads of GPIOB's input and IWDG's status registers.
 #![allow(unsafe_code)]
 
+#[path = "receiver/bus.rs"]
+mod bus;
+#[path = "receiver/io.rs"]
+mod io;
 #[path = "receiver/sd_card.rs"]
 mod sd_card;
+#[path = "receiver/writer.rs"]
+mod writer;
 
-use core::cell::UnsafeCell;
+use bus::{BusHandle, CycleDelay, clear_pins, with_bus};
 use core::mem::MaybeUninit;
-use core::sync::atomic::{AtomicBool, AtomicU8, AtomicU32, Ordering};
+use core::sync::atomic::{AtomicBool, Ordering};
 use cortex_m::peripheral::{DWT, SCB};
 use defmt_rtt as _;
 use embedded_graphics::pixelcolor::BinaryColor;
 use embedded_graphics::prelude::*;
 use embedded_hal::delay::DelayNs;
 use embedded_hal_bus::spi::ExclusiveDevice;
-use firmware::app::{AppConfig, AppError, DisplayModel, Receiver};
+use firmware::app::Receiver;
 use firmware::board::board_log::BoardLog;
-use firmware::board::controls::{Closed, Controls, Response};
+use firmware::board::controls::Controls;
 use firmware::board::crash::{self, CrashKind, CrashRecord, LastReset};
-use firmware::board::gain;
-use firmware::board::health::{self, Battery, Fault, SensorHealth};
-use firmware::board::i2c_bus::{self, ClearError, Cleared, Guarded, Recoverable};
+use firmware::board::health::{Battery, SensorHealth};
+use firmware::board::i2c_bus::Cleared;
 use firmware::board::log_item::{LogItem, Overruns};
+use firmware::board::process::{Counters, ImuRecord, Process, Sample};
 use firmware::board::schedule::{
     self, IMU_QUEUE, LOG_QUEUE, PRIO_DISPLAY, PRIO_DRDY, PRIO_IMU, PRIO_PROCESS,
 };
 use firmware::board::sd_log::SdState;
 use firmware::board::settings::Settings;
 use firmware::board::settings_store::{self, BOARD_AREA};
-use firmware::board::sound;
 use firmware::board::view::{self, View};
-use firmware::board::watchdog::{MonotonicMs, ProgressWatch, TickMisses, Verdict, Work};
-use firmware::board::{self, BoardProfile, pins};
+use firmware::board::watchdog::{MonotonicMs, ProgressWatch, TickMisses};
+use firmware::board::{self, BoardProfile};
 use firmware::drivers::ads131m04::Ads131m04;
-use firmware::drivers::imu::{Imu, ImuReading};
-use firmware::frontend::{Frontend, IfRange, PulseMeasurement, RangeChange};
-use firmware::motion::MagCalibration;
-use firmware::timebase::{ClockEvent, Instant, SampleClock, pulse_centre_us};
-use firmware::victims::MarkButton;
+use firmware::drivers::button::MarkButton;
+use firmware::drivers::imu::Imu;
+use firmware::frontend::Frontend;
+use firmware::timebase::SampleClock;
 use heapless::spsc::{Consumer, Producer, Queue};
-use rtic::Mutex;
+use io::{Io, ProcPins};
 use ssd1306::{I2CDisplayInterface, Ssd1306, prelude::*};
 use stm32f4xx_hal::adc::Adc;
-use stm32f4xx_hal::adc::config::{AdcConfig, SampleTime};
-use stm32f4xx_hal::flash::{FlashExt, LockedFlash};
-use stm32f4xx_hal::gpio::{
-    Edge, ExtiPin, Input, OpenDrain, Output, PA3, PB6, PB7, PC1, PC2, PC3, PC6, PC7,
-};
+use stm32f4xx_hal::adc::config::AdcConfig;
+use stm32f4xx_hal::flash::LockedFlash;
+use stm32f4xx_hal::gpio::{Edge, ExtiPin, Input, PC7};
 use stm32f4xx_hal::i2c::I2c;
-use stm32f4xx_hal::rcc::Rcc;
-use stm32f4xx_hal::timer::{CounterHz, PwmChannel, PwmHzManager};
+use stm32f4xx_hal::timer::CounterHz;
 use stm32f4xx_hal::watchdog::IndependentWatchdog;
 use stm32f4xx_hal::{pac, prelude::*, rcc::Config, spi};
+use writer::Writer;
 
 /// The board this binary runs on: analog chain, ADC, IMU mounting and rates, defaults.
 const PROFILE: BoardProfile = board::REFERENCE;
-/// Longest time (µs) the screen goes without a redraw when no pulse redraws it.
-const REDRAW_MAX_US: u64 = 1_000_000;
 /// ADC frames buffered between the DRDY interrupt and the processing task: 256 ms at
 /// 8 kSPS (`board::schedule::SAMPLE_QUEUE`; the worst burst of pulses fills 875).
 const QUEUE_LEN: usize = firmware::board::schedule::SAMPLE_QUEUE as usize;
@@ -153,13 +157,6 @@ const IMU_HZ: f32 = PROFILE.imu.rate_hz;
 /// Core cycles of one IMU tick.
 const TICK_CYCLES: u32 = SYSCLK_HZ / PROFILE.imu.rate_hz as u32;
 
-/// One simultaneous sample of the three coils.
-#[derive(Clone, Copy)]
-struct Sample {
-    volts: [f32; 3],
-    clipped: bool,
-}
-
 /// DRDY always reads "ready": the driver is only called from the DRDY interrupt, i.e.
 /// right after the real DRDY pin (owned by the interrupt for its pending flag) fell.
 struct DrdyAsserted;
@@ -190,35 +187,8 @@ pub struct Sampler {
     drdy: PC7<Input>,
 }
 
-/// One IMU tick's result, stamped with the samples queued before it.
-pub struct ImuRecord {
-    /// ADC samples queued when the IMU was read (the processing task takes the record
-    /// after those samples: time order).
-    queued: u32,
-    /// The reading (`None`: no IMU up; `Some(Err)`: the read failed).
-    reading: Option<Result<ImuReading, ()>>,
-}
-
-/// ADC samples taken (DRDY edges), queued, dropped (queue full), failed frames.
-static SAMPLES: AtomicU32 = AtomicU32::new(0);
-static QUEUED: AtomicU32 = AtomicU32::new(0);
-static DROPPED: AtomicU32 = AtomicU32::new(0);
-static FRAME_ERRORS: AtomicU32 = AtomicU32::new(0);
-/// IMU ticks missed (TIM2 released again before its last release ran) and IMU records
-/// lost to a full queue.
-static MISSED_TICKS: AtomicU32 = AtomicU32::new(0);
-/// ADC samples lost while the flash stalled every task (a settings save), from the
-/// cycle counter: the processing task moves its clock on by them and logs an overrun.
-static FLASH_LOST: AtomicU32 = AtomicU32::new(0);
-static IMU_OVERRUNS: AtomicU32 = AtomicU32::new(0);
-/// Progress of the processing task (queue drained; IMU records handled), for the feeder.
-static DRAINS: AtomicU32 = AtomicU32::new(0);
-static TICKS: AtomicU32 = AtomicU32::new(0);
-/// The display after its last write; set when a bus clear asks for a re-init.
-static SCREEN_OK: AtomicBool = AtomicBool::new(false);
-static SCREEN_REINIT: AtomicBool = AtomicBool::new(false);
-/// The SD card's state for the display: 0 logging, 1 no card, 2 failed.
-static SD_MARK: AtomicU8 = AtomicU8::new(0);
+/// Counters and flags the tasks share (samples, overruns, progress, display, SD card).
+static COUNTERS: Counters = Counters::new();
 
 /// The application state in SRAM (not zeroed by the runtime: initialized with
 /// `Receiver::emplace` before use).
@@ -310,132 +280,6 @@ fn fatal(what: &'static str) -> ! {
     SCB::sys_reset()
 }
 
-/// Busy-wait delay from the core clock, for the bus clear (SysTick is the init delay's).
-struct CycleDelay;
-
-impl DelayNs for CycleDelay {
-    fn delay_ns(&mut self, ns: u32) {
-        let cycles = u64::from(ns) * u64::from(SYSCLK_HZ / 1_000_000) / 1000 + 1;
-        cortex_m::asm::delay(u32::try_from(cycles).unwrap_or(u32::MAX));
-    }
-}
-
-/// Whether PB6 (SCL) and PB7 (SDA) both read high. The input data register samples the
-/// pins in every mode, the I2C alternate function included.
-fn i2c_lines_high() -> bool {
-    // SAFETY: a read of GPIOB's input data register, which has no side effect and is
-    // never written.
-    let idr = unsafe { (*pac::GPIOB::ptr()).idr().read().bits() };
-    idr & (1 << 6) != 0 && idr & (1 << 7) != 0
-}
-
-/// Clears the bus on its two pins as open-drain GPIOs.
-fn clear_pins(
-    scl: &mut PB6<Output<OpenDrain>>,
-    sda: &mut PB7<Output<OpenDrain>>,
-) -> Result<Cleared, ClearError> {
-    i2c_bus::clear_bus(scl, sda, &mut CycleDelay)
-}
-
-/// I2C1 that can be taken apart for a bus clear and rebuilt.
-struct BoardI2c {
-    /// `None` only if a clear could not get the pins back (then every transfer fails).
-    i2c: Option<I2c<pac::I2C1>>,
-    rcc: Rcc,
-}
-
-impl embedded_hal::i2c::ErrorType for BoardI2c {
-    type Error = stm32f4xx_hal::i2c::Error;
-}
-
-impl embedded_hal::i2c::I2c for BoardI2c {
-    fn transaction(
-        &mut self,
-        address: u8,
-        operations: &mut [embedded_hal::i2c::Operation<'_>],
-    ) -> Result<(), Self::Error> {
-        match self.i2c.as_mut() {
-            Some(i2c) => embedded_hal::i2c::I2c::transaction(i2c, address, operations),
-            None => Err(stm32f4xx_hal::i2c::Error::Bus),
-        }
-    }
-}
-
-impl Recoverable for BoardI2c {
-    fn lines_idle(&mut self) -> bool {
-        self.i2c.is_some() && i2c_lines_high()
-    }
-
-    fn clear_and_reinit(&mut self) -> Result<Cleared, ClearError> {
-        let Some(i2c) = self.i2c.take() else {
-            return Err(ClearError::Pin);
-        };
-        let (per, (scl, sda)) = i2c.release();
-        let (Ok(mut scl), Ok(mut sda)) = (
-            PB6::<Output<OpenDrain>>::try_from(scl),
-            PB7::<Output<OpenDrain>>::try_from(sda),
-        ) else {
-            return Err(ClearError::Pin);
-        };
-        let r = clear_pins(&mut scl, &mut sda);
-        self.i2c = Some(I2c::new(per, (scl, sda), I2C_HZ.Hz(), &mut self.rcc));
-        r
-    }
-}
-
-/// The shared I2C bus (IMU, magnetometer, display), used only through [`with_bus`].
-struct BusCell(UnsafeCell<MaybeUninit<Guarded<BoardI2c>>>);
-
-// SAFETY: every access goes through `with_bus`, which masks every task that uses the bus
-// (priority ≤ the IMU tick's) for its duration: one user at a time.
-unsafe impl Sync for BusCell {}
-
-static BUS: BusCell = BusCell(UnsafeCell::new(MaybeUninit::uninit()));
-/// Set once the bus is in place (before any task runs).
-static BUS_READY: AtomicBool = AtomicBool::new(false);
-
-/// BASEPRI value of the bus's ceiling (the IMU tick's priority), as RTIC computes it.
-const BUS_CEILING: u8 = ((1 << pac::NVIC_PRIO_BITS) - PRIO_IMU) << (8 - pac::NVIC_PRIO_BITS);
-
-/// Runs `f` on the bus with the tasks that use it masked (the priority-ceiling lock
-/// RTIC uses for its resources, by hand: the drivers own a handle, not a borrow). The
-/// DRDY interrupt (above the ceiling) still runs. `None` before the bus is in place.
-fn with_bus<R>(f: impl FnOnce(&mut Guarded<BoardI2c>) -> R) -> Option<R> {
-    if !BUS_READY.load(Ordering::Acquire) {
-        return None;
-    }
-    let old = cortex_m::register::basepri::read();
-    // Raising BASEPRI only masks more; it is restored below.
-    cortex_m::register::basepri_max::write(BUS_CEILING);
-    // SAFETY: BUS_READY says the bus was written; every task that reaches this line runs
-    // at or below the ceiling, so no other access can preempt this one, and `f` does not
-    // call `with_bus` (the drivers below it know nothing of it).
-    let r = f(unsafe { &mut *(*BUS.0.get()).as_mut_ptr() });
-    // SAFETY: restores the value read above.
-    unsafe { cortex_m::register::basepri::write(old) };
-    Some(r)
-}
-
-/// A driver's handle on the shared bus: each transaction under [`with_bus`].
-#[derive(Clone, Copy)]
-pub struct BusHandle;
-
-impl embedded_hal::i2c::ErrorType for BusHandle {
-    type Error = i2c_bus::GuardError<stm32f4xx_hal::i2c::Error>;
-}
-
-impl embedded_hal::i2c::I2c for BusHandle {
-    fn transaction(
-        &mut self,
-        address: u8,
-        operations: &mut [embedded_hal::i2c::Operation<'_>],
-    ) -> Result<(), Self::Error> {
-        with_bus(|b| embedded_hal::i2c::I2c::transaction(b, address, operations)).unwrap_or(Err(
-            i2c_bus::GuardError::Bus(stm32f4xx_hal::i2c::Error::Bus),
-        ))
-    }
-}
-
 type Screen = Ssd1306<
     I2CInterface<BusHandle>,
     DisplaySize128x64,
@@ -453,61 +297,11 @@ fn imu_up(delay: &mut impl DelayNs) -> Option<Imu<BusHandle>> {
     }
 }
 
-/// Reacts to the sample clock's verdict: a stalled ADC's DRDY is re-armed by reading one
-/// frame (it stays low until the frame is read, so no further edge would come).
-fn watch_adc(event: ClockEvent, sampler: &mut impl Mutex<T = Sampler>) -> ClockEvent {
-    match event {
-        ClockEvent::Running => {}
-        ClockEvent::Resumed => defmt::info!("antenna ADC delivering again"),
-        ClockEvent::Stalled { rearm: false } => {}
-        ClockEvent::Stalled { rearm: true } => {
-            defmt::warn!("antenna ADC stalled: re-arming DRDY");
-            sampler.lock(|s| {
-                let _frame = s.adc.read_frame();
-                s.drdy.clear_interrupt_pending_bit();
-            });
-        }
-    }
-    event
-}
-
-/// Writes a change of analog setting (gain ranging, [`firmware::board::gain`]) to the
-/// hardware: the coils' PGA gain in one register write (under the DRDY task's lock), then
-/// the IF range switch; after a failed gain write the switch stays at `from`. True when
-/// the PGA took the new gain.
-fn write_range(
-    pin: &mut PC3<Output>,
-    change: &RangeChange,
-    sampler: &mut impl Mutex<T = Sampler>,
-) -> bool {
-    let gain_ok = sampler.lock(|s| s.adc.set_coil_gains(change.to.gain).is_ok());
-    let r = if gain_ok { change.to } else { change.from };
-    match r.if_range {
-        IfRange::High => pin.set_low(),
-        IfRange::Low => pin.set_high(),
-    }
-    gain_ok
-}
-
-/// Board time for the session log's records, s.
-fn log_t(clock: &SampleClock) -> f64 {
-    clock.now().secs_f64()
-}
-
-/// The SD card's word for the display (published by the idle loop).
-fn sd_label() -> Option<&'static str> {
-    match SD_MARK.load(Ordering::Relaxed) {
-        0 => None,
-        1 => SdState::NoCard.fault_label(),
-        _ => Some("SD ERR"),
-    }
-}
-
 /// Clears `screen` and draws `view` with the health overlay (a sensor fault over the
 /// status word, the battery gauge, the SD mark); false if the display did not take it.
 fn show(screen: &mut Screen, view: &View) -> bool {
     screen.clear(BinaryColor::Off).ok();
-    view::draw(view, sd_label(), screen).is_ok() && screen.flush().is_ok()
+    view::draw(view, COUNTERS.sd_label(), screen).is_ok() && screen.flush().is_ok()
 }
 
 /// What the IMU tick task owns.
@@ -519,531 +313,18 @@ pub struct Tick {
     misses: TickMisses,
 }
 
-/// What the processing task owns.
+/// What the processing task owns: its logic ([`Process`]), its input queues and the
+/// hardware it drives.
 pub struct Proc {
+    core: Process<'static>,
     samples: Consumer<'static, Sample>,
     records: Consumer<'static, ImuRecord>,
-    log: Producer<'static, LogItem>,
-    frontend: &'static mut Frontend,
-    receiver: &'static mut Receiver,
-    rate: f32,
-    clock: SampleClock,
-    taken: u32,
-    last_imu_t: Option<Instant>,
-    drawn: Option<Instant>,
-    shown: DisplayModel,
-    sensors: SensorHealth,
-    fault: Option<Fault>,
-    battery: Battery,
-    mcu_adc: Adc<pac::ADC1>,
-    vbat_pin: PA3<stm32f4xx_hal::gpio::Analog>,
-    vdda_v: f32,
-    fault_led: PC1<Output>,
-    if_range: PC3<Output>,
-    mark: MarkButton<PC6<Input>>,
-    sound_pin: PC2<Input>,
-    /// The buttons, the menu, its procedures and the tone (`board::controls`).
-    controls: Controls,
-    /// The tone playing and its duty.
-    playing: Option<(u32, u16)>,
-    buzz_timer: PwmHzManager<pac::TIM4>,
-    buzzer: PwmChannel<pac::TIM4, 2>,
-    mag_cal: Option<MagCalibration>,
-    ms_clock: MonotonicMs,
-    window_ticks: u32,
-    window_samples: u32,
-    window_errors: u32,
-    bus_stats: i2c_bus::BusStats,
-    /// Overruns counted so far, by kind, and what was last logged.
-    reported: Overruns,
-    log_overruns: u32,
-    /// Settings to store (the idle loop writes the flash).
-    saves: Producer<'static, Settings>,
+    pins: ProcPins,
 }
 
 /// What the display task owns.
 pub struct Display {
     screen: Screen,
-}
-
-/// What the idle loop owns: the session log's writer and the watchdog's feeder.
-pub struct Writer {
-    log: &'static mut BoardLog<sd_card::SdioCard, stm32f4xx_hal::serial::Tx<pac::USART3>>,
-    items: Consumer<'static, LogItem>,
-    iwdg: IndependentWatchdog,
-    ms_clock: MonotonicMs,
-    watch: ProgressWatch,
-    starving: bool,
-    progress: [u32; 2],
-    last_t: f64,
-    /// The UART while the card logs (attached when the card fails).
-    spare_uart: Option<stm32f4xx_hal::serial::Tx<pac::USART3>>,
-    /// The flash (settings saves) and the settings to store.
-    flash: LockedFlash,
-    saves: Consumer<'static, Settings>,
-    /// The ADC's sample rate, Hz (samples lost to a flash stall).
-    adc_rate_hz: f32,
-}
-
-impl Proc {
-    /// Queues a session-log record; a full queue loses it (counted, logged later).
-    fn log(&mut self, item: LogItem) {
-        if self.log.enqueue(item).is_err() {
-            self.log_overruns = self.log_overruns.wrapping_add(1);
-        }
-    }
-
-    /// An event record now.
-    fn event(&mut self, kind: &'static str, why: Option<&'static str>, count: Option<i64>) {
-        let t = log_t(&self.clock);
-        self.log(LogItem::Event {
-            t,
-            kind,
-            why,
-            count,
-        });
-    }
-
-    /// Hands the display the newest model.
-    fn redraw(&mut self, view: &mut impl Mutex<T = Option<View>>) {
-        self.drawn = Some(self.clock.now());
-        let v = View {
-            model: self.shown,
-            fault: self.fault,
-            battery: self.battery.state(),
-            menu: self.controls.open_menu(),
-            procedure: self
-                .controls
-                .procedure(self.receiver.motion().total_steps()),
-            outcome: self.controls.outcome(),
-        };
-        view.lock(|slot| *slot = Some(v));
-        rtic::pend(pac::Interrupt::USART2);
-    }
-
-    /// One ADC sample through the front end; a finished pulse through the estimator.
-    fn on_sample(
-        &mut self,
-        sample: Sample,
-        sampler: &mut impl Mutex<T = Sampler>,
-        view: &mut impl Mutex<T = Option<View>>,
-    ) {
-        self.taken = self.taken.wrapping_add(1);
-        match self.frontend.push(sample.volts, sample.clipped) {
-            Ok(Some(pulse)) => {
-                // The DSP counts only the samples it saw: stalls are added back.
-                let t_pulse = Instant::from_micros(
-                    pulse_centre_us(pulse.start_sample, pulse.duration_s, self.rate)
-                        + self.clock.offset_us(),
-                );
-                // Logged before it is processed: a fault in the estimator loses no record.
-                self.log(LogItem::Pulse {
-                    t: t_pulse.secs_f64(),
-                    m: pulse.measurement,
-                    src: pulse.src,
-                });
-                let model = match pulse.measurement {
-                    PulseMeasurement::Field(h) => {
-                        self.receiver.on_pulse(t_pulse, &h, pulse.src).ok()
-                    }
-                    // Overlap, clipping, truncation: held out of the estimators.
-                    _ => Some(self.receiver.on_withheld(t_pulse)),
-                };
-                if let Some(model) = model {
-                    self.shown = model;
-                    self.redraw(view);
-                }
-            }
-            Ok(None) => {}
-            Err(_) => defmt::warn!("front end refused a sample"),
-        }
-        // A change of gain: to the hardware, then to the log (the replay's `gain` event).
-        let (queued, offset_us) = (self.samples.len(), self.clock.offset_us());
-        let pin = &mut self.if_range;
-        if let Some(e) = gain::apply_change(self.frontend, queued, self.rate, offset_us, |c| {
-            write_range(pin, c, sampler)
-        }) {
-            let c = e.change;
-            if e.applied {
-                defmt::info!("range {} -> {} ({})", c.from, c.to, c.reason);
-            } else {
-                defmt::warn!("PGA write failed: staying at {}", c.from);
-            }
-            self.log(LogItem::Gain(e));
-        }
-    }
-
-    /// One 100 Hz tick: the clock, health, battery, buttons, tones and the IMU sample.
-    fn on_tick(
-        &mut self,
-        record: ImuRecord,
-        sampler: &mut impl Mutex<T = Sampler>,
-        view: &mut impl Mutex<T = Option<View>>,
-    ) {
-        self.sensors
-            .adc_tick(watch_adc(self.clock.tick(self.taken), sampler));
-        self.window_ticks += 1;
-        if self.window_ticks >= IMU_HZ as u32 {
-            self.window_ticks = 0;
-            self.second();
-        }
-        // The buttons (the mark button debounced over 3 ticks by its own poll).
-        let now_ms = self.ms_clock.now_ms(DWT::cycle_count());
-        let steps = self.receiver.motion().total_steps();
-        let low = self.sound_pin.is_low();
-        let sound = self.controls.sound_button(low, now_ms, steps);
-        let mut redraw = self.respond(sound);
-        if self.mark.poll() {
-            let r = self.controls.mark_button(steps);
-            redraw |= self.respond(r);
-        }
-        let t = self.clock.now();
-        // A fault shows at once and is logged when it comes and goes.
-        let (stuck, stats) = with_bus(|b| (b.stuck(), b.stats())).unwrap_or_default();
-        self.sensors.bus_stuck(stuck);
-        if stats != self.bus_stats {
-            defmt::warn!(
-                "I2C bus: {=u32} errors, {=u32} stuck, {=u32} cleared, {=u32} clears failed",
-                stats.errors,
-                stats.stuck,
-                stats.recoveries,
-                stats.failed_recoveries
-            );
-            self.bus_stats = stats;
-        }
-        self.sensors.imu_up(record.reading.is_some());
-        let now_fault = self.sensors.fault();
-        if now_fault != self.fault {
-            match now_fault {
-                Some(f) => defmt::error!("sensor fault: {=str}", f.label()),
-                None => defmt::info!("sensor fault cleared"),
-            }
-            self.event(
-                "fault",
-                Some(now_fault.map_or("cleared", Fault::label)),
-                None,
-            );
-            self.fault = now_fault;
-            redraw = true;
-        }
-        let screen_ok = SCREEN_OK.load(Ordering::Relaxed);
-        let led = self.fault.is_some() || !screen_ok || sd_label().is_some();
-        self.fault_led.set_state(led.into());
-        // Pulses redraw the screen; without them it is redrawn at least every
-        // REDRAW_MAX_US, so that "NO SIGNAL" and the arrow to a silent victim show.
-        if redraw
-            || self
-                .drawn
-                .is_none_or(|d| t.micros().saturating_sub(d.micros()) >= REDRAW_MAX_US)
-        {
-            self.shown = self.receiver.display_model();
-            self.redraw(view);
-        }
-        self.tone();
-        // A short hole in the ADC's samples holds the clock: skip that tick's sample.
-        if let Some(reading) = record
-            .reading
-            .filter(|_| self.last_imu_t.is_none_or(|l| t > l))
-        {
-            self.last_imu_t = Some(t);
-            match reading {
-                Ok(r) => {
-                    // The calibration fits the raw readings.
-                    self.controls.on_mag(&r.mag);
-                    let mag = self.mag_cal.map_or(r.mag, |c| c.apply(&r.mag));
-                    self.log(LogItem::Imu {
-                        t: t.secs_f64(),
-                        acc: r.acc,
-                        gyr: r.gyr,
-                        mag,
-                    });
-                    if self.receiver.on_imu(t, &r.acc, &r.gyr, Some(&mag)).is_err() {
-                        defmt::warn!("IMU sample refused");
-                    }
-                    self.sensors.imu_read(true);
-                }
-                Err(()) => {
-                    defmt::warn!("IMU read failed");
-                    self.event("read_error", Some("imu"), None);
-                    self.sensors.imu_read(false);
-                }
-            }
-        }
-        self.overruns();
-        TICKS.fetch_add(1, Ordering::Relaxed);
-    }
-
-    /// Once a second: the ADC's health window and the battery.
-    fn second(&mut self) {
-        let (n, e) = (
-            SAMPLES.load(Ordering::Relaxed),
-            FRAME_ERRORS.load(Ordering::Relaxed),
-        );
-        let failed = e.wrapping_sub(self.window_errors);
-        self.sensors
-            .adc_window(n.wrapping_sub(self.window_samples), failed);
-        if failed > 0 {
-            self.event("read_error", Some("adc"), Some(i64::from(failed)));
-        }
-        (self.window_samples, self.window_errors) = (n, e);
-        let raw = self.mcu_adc.convert(&self.vbat_pin, SampleTime::Cycles_480);
-        let was_low = self.battery.state().is_some_and(|b| b.low);
-        let volts = health::battery_volts(raw, self.vdda_v, pins::BATTERY_DIVIDER);
-        if let Some(b) = self.battery.update(volts).filter(|b| b.low != was_low) {
-            if b.low {
-                defmt::warn!("battery low: {=f32} V", b.volts);
-            } else {
-                defmt::info!("battery no longer low: {=f32} V", b.volts);
-            }
-        }
-    }
-
-    /// Carries out what the buttons asked for (`board::controls`): log records, a victim
-    /// marked, the closed menu's settings applied and stored. True when the screen
-    /// changed.
-    fn respond(&mut self, r: Response) -> bool {
-        if let Some(muted) = r.muted {
-            defmt::info!("sound {=str}", if muted { "off" } else { "on" });
-        }
-        if let Some((what, result, value)) = r.calibration {
-            defmt::info!("{=str}: {=str}", what, result);
-            self.calibration_event(what, result, value);
-        }
-        if r.mark_victim {
-            self.event("mark", None, None);
-            match self.receiver.mark() {
-                Ok(n) => defmt::info!("victim {=u8} marked", n),
-                Err(_) => defmt::info!("mark: no victim to mark"),
-            }
-            self.shown = self.receiver.display_model();
-        }
-        if let Some(c) = r.closed {
-            self.close_menu(c);
-        }
-        r.redraw || r.mark_victim
-    }
-
-    /// A `calibration` event: which procedure, what happened, its value.
-    fn calibration_event(&mut self, what: &'static str, result: &'static str, value: Option<f32>) {
-        let t = log_t(&self.clock);
-        self.log(LogItem::Calibration {
-            t,
-            what,
-            result,
-            value,
-        });
-    }
-
-    /// The receiver rebuilt in place for `s` (a new search): mode, earth field, step
-    /// length; the log starts a new segment with the new earth field.
-    fn rebuild_receiver(&mut self, s: &Settings) {
-        let step = s
-            .calibration
-            .step_length_m
-            .or(PROFILE.defaults.step_length_m);
-        let mut cfg = PROFILE.app_config(s.earth_field(), step);
-        cfg.mode = s.mode.app();
-        match rebuild(self.receiver, cfg) {
-            Ok(()) => {
-                self.controls.rebuilt(s);
-                self.last_imu_t = None;
-                self.shown = self.receiver.display_model();
-                self.log(LogItem::Header {
-                    imu_hz: PROFILE.imu.rate_hz,
-                    earth_ut: s.earth_field(),
-                });
-                defmt::info!("receiver rebuilt: mode {=str}", s.mode.word());
-            }
-            Err(e) => defmt::error!("new settings refused by the receiver: {}", e),
-        }
-    }
-
-    /// The menu closed with changed settings: they apply from now on (a new mode, region
-    /// or step length rebuilds the receiver: a new search), are logged and go to the idle
-    /// loop to be stored in flash (it stalls every task while it writes).
-    fn close_menu(&mut self, c: Closed) {
-        let s = c.settings;
-        self.mag_cal = s.calibration.mag;
-        if c.rebuild {
-            self.rebuild_receiver(&s);
-        }
-        let why = if self.saves.enqueue(s).is_ok() {
-            defmt::info!("settings changed (volume {=u8}); saving", s.volume);
-            "menu"
-        } else {
-            defmt::warn!("settings changed; not stored (saves pending)");
-            "menu_not_saved"
-        };
-        self.event("settings", Some(why), Some(i64::from(s.volume)));
-    }
-
-    /// The tone of the moment (10 ms edges at the tick) at its volume.
-    fn tone(&mut self) {
-        let now_ms = self.ms_clock.now_ms(DWT::cycle_count());
-        let play = self
-            .controls
-            .tone(&self.shown, self.fault, now_ms)
-            .map(|(hz, volume)| (hz, sound::duty(self.buzzer.get_max_duty(), volume)));
-        if play != self.playing {
-            match play {
-                Some((hz, duty)) => {
-                    self.buzz_timer.set_period(hz.Hz());
-                    self.buzzer.set_duty(duty);
-                }
-                None => self.buzzer.set_duty(0),
-            }
-            self.playing = play;
-        }
-    }
-
-    /// Logs each kind of overrun whose count grew: samples dropped (queue full), IMU
-    /// ticks missed, IMU records lost (queue full), log records lost (queue full; logged
-    /// once the queue has room again), samples lost while the flash stalled (a settings
-    /// save: the clock moves on by them).
-    fn overruns(&mut self) {
-        // In the order of `log_item::OVERRUN_KINDS`.
-        let now = [
-            DROPPED.load(Ordering::Relaxed),
-            MISSED_TICKS.load(Ordering::Relaxed),
-            IMU_OVERRUNS.load(Ordering::Relaxed),
-            self.log_overruns,
-            FLASH_LOST.load(Ordering::Relaxed),
-        ];
-        for (why, new) in self.reported.report(now) {
-            if why == "flash" {
-                self.clock.skip(new);
-            }
-            defmt::warn!("overrun {=str}: {=u32}", why, new);
-            self.event("overrun", Some(why), Some(i64::from(new)));
-        }
-    }
-}
-
-impl Writer {
-    /// One pass of the idle loop: the queued records to the log, the card's flush, the
-    /// watchdog.
-    fn pass(&mut self) {
-        while let Some(item) = self.items.dequeue() {
-            if let Some(t) = self.log.write_item(&item) {
-                self.last_t = t;
-            }
-            self.supervise();
-        }
-        if let Some(s) = self.saves.dequeue() {
-            self.save_settings(&s);
-        }
-        let now = self.ms_clock.now_ms(DWT::cycle_count());
-        // The SD card: flushed when due; a failure shows and is reported.
-        let (sd_changed, errors) = self.log.tick(self.last_t, now);
-        if let Some(state) = sd_changed {
-            defmt::error!("SD card: {}", state);
-        }
-        if let Some(e) = errors {
-            defmt::warn!("session log errors: {}", e);
-        }
-        let mark = match self.log.sd_state() {
-            SdState::Logging(_) => 0,
-            SdState::NoCard => 1,
-            SdState::Failed(_) => 2,
-        };
-        // The card failed: the stream takes over (its `log_error` event included).
-        if mark != 0
-            && let Some(uart) = self.spare_uart.take()
-        {
-            self.spare_uart = self.log.attach_uart(uart);
-            defmt::warn!("session log: UART stream on");
-        }
-        SD_MARK.store(mark, Ordering::Relaxed);
-        self.supervise();
-    }
-
-    /// Stores `s` in flash (`board::settings_store`: the next free slot of sector 11,
-    /// read back). The flash stalls instruction fetch while it programs (144 bytes,
-    /// ≈ 2 ms) and, once every 910 saves, while it erases the sector (up to 4 s): every
-    /// task and interrupt stalls with it. So the watchdog's period is raised around the
-    /// write, the progress stamps restart after it, and the ADC samples it cost (the
-    /// samples its time should have brought minus those the DRDY task read) go to the
-    /// processing task, which moves its clock on by them and logs an `overrun`. The
-    /// outcome is a `settings` event.
-    fn save_settings(&mut self, s: &Settings) {
-        let read0 = SAMPLES.load(Ordering::Relaxed);
-        set_watchdog_period(&mut self.iwdg, SAVE_IWDG_MS);
-        let t0 = self.ms_clock.now_ms(DWT::cycle_count());
-        let r = settings_store::save(&mut self.flash.unlocked(), BOARD_AREA, s);
-        let t1 = self.ms_clock.now_ms(DWT::cycle_count());
-        set_watchdog_period(&mut self.iwdg, IWDG_PERIOD_MS);
-        for work in Work::ALL {
-            self.watch.progress(work, t1);
-        }
-        let stall_ms = t1.saturating_sub(t0);
-        let read = SAMPLES.load(Ordering::Relaxed).wrapping_sub(read0);
-        let lost = settings_store::samples_lost(stall_ms, self.adc_rate_hz, read);
-        FLASH_LOST.fetch_add(lost, Ordering::Relaxed);
-        match &r {
-            Ok(saved) => defmt::info!("settings saved: {} in {=u64} ms", saved, stall_ms),
-            Err(e) => defmt::error!("settings not saved: {}", e),
-        }
-        self.log.settings_saved(self.last_t, &r, stall_ms);
-    }
-
-    /// Feeds the watchdog while the processing task progresses.
-    fn supervise(&mut self) {
-        let now = self.ms_clock.now_ms(DWT::cycle_count());
-        let progress = [
-            DRAINS.load(Ordering::Relaxed),
-            TICKS.load(Ordering::Relaxed),
-        ];
-        for ((p, last), work) in progress.iter().zip(self.progress.iter_mut()).zip(Work::ALL) {
-            if p != last {
-                *last = *p;
-                self.watch.progress(work, now);
-            }
-        }
-        match self.watch.verdict(now) {
-            Verdict::Feed => self.iwdg.feed(),
-            Verdict::Stalled { work, for_ms } => {
-                // Stop feeding: the IWDG resets within its period. Record why first.
-                if !self.starving {
-                    self.starving = true;
-                    store_crash(&CrashRecord::new(
-                        CrashKind::Starved,
-                        format_args!("{} for {} ms", work.name(), for_ms),
-                    ));
-                    defmt::error!("watchdog starved: {=str}", work.name());
-                }
-            }
-        }
-    }
-}
-
-/// Builds a new receiver for `cfg` in the place of `receiver` (≈ 88 KB: never on the
-/// stack); the old one is left as it was when `cfg` is refused.
-fn rebuild(receiver: &mut Receiver, cfg: AppConfig) -> Result<(), AppError> {
-    // SAFETY: `MaybeUninit<Receiver>` has `Receiver`'s layout, the pointer comes from a
-    // unique reference and is used only for this call, and `emplace` leaves a valid
-    // receiver behind (it checks `cfg` before it writes). The old receiver is forgotten,
-    // not dropped (as `ptr::write` does): it owns no heap and no device, only inline
-    // `heapless` buffers of plain data, so nothing leaks.
-    let slot = unsafe { &mut *core::ptr::from_mut(receiver).cast::<MaybeUninit<Receiver>>() };
-    Receiver::emplace(slot, cfg).map(|_| ())
-}
-
-/// Sets the independent watchdog's period and feeds it. The IWDG takes a new reload value
-/// only once its last update is done (SR.PVU/RVU clear after a few LSI cycles, RM0090):
-/// waited for before and after, at most 50 ms each.
-fn set_watchdog_period(iwdg: &mut IndependentWatchdog, ms: u32) {
-    let updating = || {
-        // SAFETY: a read of the IWDG's status register, which has no side effect.
-        unsafe { (*pac::IWDG::ptr()).sr().read().bits() & 0b11 != 0 }
-    };
-    let wait = || {
-        let start = DWT::cycle_count();
-        while updating() && DWT::cycle_count().wrapping_sub(start) < 50 * (SYSCLK_HZ / 1000) {}
-    };
-    wait();
-    iwdg.start(ms.millis());
-    wait();
-    iwdg.feed();
 }
 
 #[rtic::app(device = stm32f4xx_hal::pac, peripherals = true)]
@@ -1217,16 +498,7 @@ mod app {
             Err(_) => defmt::error!("I2C bus stuck at boot and not freed"),
         }
         let i2c = I2c::new(dp.I2C1, (scl, sda), I2C_HZ.Hz(), &mut rcc);
-        // The bus owns the clock controller from here (it rebuilds I2C1 after a clear).
-        // SAFETY: the only write of BUS, before BUS_READY lets anything use it; no task runs
-        // during init.
-        unsafe {
-            (*BUS.0.get()).write(Guarded::new(BoardI2c {
-                i2c: Some(i2c),
-                rcc,
-            }))
-        };
-        BUS_READY.store(true, Ordering::Release);
+        bus::install(i2c, rcc);
         let imu = imu_up(&mut delay);
         let mut sensors = SensorHealth::new();
         sensors.adc_boot(adc_ok);
@@ -1240,7 +512,7 @@ mod app {
         )
         .into_buffered_graphics_mode();
         let screen_ok = screen.init().is_ok();
-        SCREEN_OK.store(screen_ok, Ordering::Relaxed);
+        COUNTERS.screen_ok.store(screen_ok, Ordering::Relaxed);
         iwdg.feed();
 
         // The last reset's report, on the display for a while (the watchdog fed meanwhile).
@@ -1338,40 +610,46 @@ mod app {
                     misses: TickMisses::new(TICK_CYCLES),
                 },
                 work: Proc {
+                    core: Process {
+                        profile: &PROFILE,
+                        counters: &COUNTERS,
+                        log: log_in,
+                        saves: saves_in,
+                        frontend,
+                        receiver,
+                        rate,
+                        clock,
+                        taken: 0,
+                        last_imu_t: None,
+                        drawn: None,
+                        shown,
+                        sensors,
+                        fault,
+                        battery: Battery::new(),
+                        controls: Controls::new(settings, SOUND_ON),
+                        playing: None,
+                        mag_cal,
+                        window_ticks: 0,
+                        window_samples: COUNTERS.samples.load(Ordering::Relaxed),
+                        window_errors: COUNTERS.frame_errors.load(Ordering::Relaxed),
+                        bus_stats,
+                        reported: Overruns::new(),
+                        log_overruns: 0,
+                    },
                     samples: samples_out,
                     records: records_out,
-                    log: log_in,
-                    frontend,
-                    receiver,
-                    rate,
-                    clock,
-                    taken: 0,
-                    last_imu_t: None,
-                    drawn: None,
-                    shown,
-                    sensors,
-                    fault,
-                    battery: Battery::new(),
-                    mcu_adc,
-                    vbat_pin,
-                    vdda_v,
-                    fault_led,
-                    if_range,
-                    mark,
-                    sound_pin,
-                    controls: Controls::new(settings, SOUND_ON),
-                    playing: None,
-                    buzz_timer,
-                    buzzer,
-                    mag_cal,
-                    ms_clock,
-                    window_ticks: 0,
-                    window_samples: SAMPLES.load(Ordering::Relaxed),
-                    window_errors: FRAME_ERRORS.load(Ordering::Relaxed),
-                    bus_stats,
-                    reported: Overruns::new(),
-                    log_overruns: 0,
-                    saves: saves_in,
+                    pins: ProcPins {
+                        mcu_adc,
+                        vbat_pin,
+                        vdda_v,
+                        fault_led,
+                        if_range,
+                        mark,
+                        sound_pin,
+                        buzz_timer,
+                        buzzer,
+                        ms_clock,
+                    },
                 },
                 display: Display { screen },
                 writer: Writer {
@@ -1405,7 +683,7 @@ mod app {
     fn drdy(mut cx: drdy::Context) {
         let sample = cx.shared.sampler.lock(|s| {
             s.drdy.clear_interrupt_pending_bit();
-            SAMPLES.fetch_add(1, Ordering::Relaxed);
+            COUNTERS.samples.fetch_add(1, Ordering::Relaxed);
             match s.adc.read_frame() {
                 Ok(frame) => {
                     let v = s.adc.to_volts(&frame);
@@ -1416,7 +694,7 @@ mod app {
                 }
                 // A corrupted frame keeps the time base: the DSP sees a clipped zero sample.
                 Err(_) => {
-                    FRAME_ERRORS.fetch_add(1, Ordering::Relaxed);
+                    COUNTERS.frame_errors.fetch_add(1, Ordering::Relaxed);
                     Sample {
                         volts: [0.0; 3],
                         clipped: true,
@@ -1425,9 +703,9 @@ mod app {
             }
         });
         if cx.local.samples_in.enqueue(sample).is_ok() {
-            QUEUED.fetch_add(1, Ordering::Relaxed);
+            COUNTERS.queued.fetch_add(1, Ordering::Relaxed);
         } else {
-            DROPPED.fetch_add(1, Ordering::Relaxed);
+            COUNTERS.dropped.fetch_add(1, Ordering::Relaxed);
         }
     }
 
@@ -1439,23 +717,23 @@ mod app {
         // Releases lost since the last tick (the timer's update came again before this ran).
         let missed = tick.misses.on_tick(DWT::cycle_count());
         if missed > 0 {
-            MISSED_TICKS.fetch_add(missed, Ordering::Relaxed);
+            COUNTERS.missed_ticks.fetch_add(missed, Ordering::Relaxed);
         }
         // A bus clear may have reset the devices or left them half-configured.
         if with_bus(|b| b.take_reinit()).unwrap_or(false) {
             tick.imu = imu_up(&mut CycleDelay);
-            SCREEN_REINIT.store(true, Ordering::Relaxed);
+            COUNTERS.screen_reinit.store(true, Ordering::Relaxed);
             defmt::warn!(
                 "I2C devices re-initialised (IMU {=bool})",
                 tick.imu.is_some()
             );
         }
         let record = ImuRecord {
-            queued: QUEUED.load(Ordering::Relaxed),
+            queued: COUNTERS.queued.load(Ordering::Relaxed),
             reading: tick.imu.as_mut().map(|imu| imu.read().map_err(|_| ())),
         };
         if tick.records.enqueue(record).is_err() {
-            IMU_OVERRUNS.fetch_add(1, Ordering::Relaxed);
+            COUNTERS.imu_overruns.fetch_add(1, Ordering::Relaxed);
         }
         rtic::pend(pac::Interrupt::USART1);
     }
@@ -1465,39 +743,47 @@ mod app {
     fn process(cx: process::Context) {
         let w = cx.local.work;
         let (mut sampler, mut view) = (cx.shared.sampler, cx.shared.view);
+        let mut io = Io {
+            pins: &mut w.pins,
+            samples: &mut w.samples,
+            sampler: &mut sampler,
+            view: &mut view,
+        };
         loop {
             // An IMU record once the samples queued before it are taken (or none wait).
-            let waiting = w.samples.ready();
+            let waiting = io.samples.ready();
             let due = w
                 .records
                 .peek()
-                .is_some_and(|r| schedule::imu_record_due(w.taken, r.queued, waiting));
+                .is_some_and(|r| schedule::imu_record_due(w.core.taken, r.queued, waiting));
             if due {
                 if let Some(r) = w.records.dequeue() {
-                    w.on_tick(r, &mut sampler, &mut view);
+                    w.core.on_tick(r, &mut io);
                 }
-            } else if let Some(s) = w.samples.dequeue() {
-                w.on_sample(s, &mut sampler, &mut view);
+            } else if let Some(s) = io.samples.dequeue() {
+                w.core.on_sample(s, &mut io);
             } else {
                 break;
             }
         }
-        DRAINS.fetch_add(1, Ordering::Relaxed);
+        COUNTERS.drains.fetch_add(1, Ordering::Relaxed);
     }
 
     /// Draws the newest model and flushes it (each I2C write under the bus lock).
     #[task(binds = USART2, priority = 1, shared = [view], local = [display])]
     fn show_view(mut cx: show_view::Context) {
         let screen = &mut cx.local.display.screen;
-        if SCREEN_REINIT.swap(false, Ordering::Relaxed) {
-            SCREEN_OK.store(screen.init().is_ok(), Ordering::Relaxed);
+        if COUNTERS.screen_reinit.swap(false, Ordering::Relaxed) {
+            COUNTERS
+                .screen_ok
+                .store(screen.init().is_ok(), Ordering::Relaxed);
         }
         if let Some(v) = cx.shared.view.lock(Option::take) {
             let ok = show(screen, &v);
             if !ok {
                 defmt::warn!("display write failed");
             }
-            SCREEN_OK.store(ok, Ordering::Relaxed);
+            COUNTERS.screen_ok.store(ok, Ordering::Relaxed);
         }
     }
 }

@@ -17,6 +17,7 @@
 //! | `calibration` | `step_walk` or `mag_cal` (a menu procedure) | `result` (`start`, `cancelled`, `done` or the failure's word), `value` (step length m, or the fit's residual µT RMS) |
 //! | `fault` | the fault's word, or `cleared` | – |
 //! | `log_error` | `sd` or `uart` | `failed`, `refused` (records lost on every writer, records refused), `sd_lost_bytes`, `sd` (the card's word or `logging`) |
+//! | `log_error` | `sd_remount` (the failed card remounted: a new file, after a new header) | `file` (its session number) |
 
 use crate::Vec3;
 use crate::board::crash::LastReset;
@@ -35,6 +36,8 @@ pub struct BoardLog<D: BlockDevice, U: Write> {
     rec: Recorder<Tee<SdSink<D>, U>>,
     /// What was last reported: records failed and refused, the writers' failed writes.
     reported: (u32, u32, [u32; 2]),
+    /// The last header's values, written again at the start of a remounted card's file.
+    header: Option<(f32, Vec3, bool)>,
 }
 
 /// The `why` of a withheld pulse (`None` for a measured one).
@@ -53,11 +56,13 @@ impl<D: BlockDevice, U: Write> BoardLog<D, U> {
         Self {
             rec: Recorder::new(Tee::new(sd, uart)),
             reported: (0, 0, [0; 2]),
+            header: None,
         }
     }
 
     /// The header (a segment starts).
     pub fn header(&mut self, imu_hz: f32, earth_field_ut: &Vec3, sign_ambiguous: bool) {
+        self.header = Some((imu_hz, *earth_field_ut, sign_ambiguous));
         let _counted = self.rec.header(imu_hz, earth_field_ut, sign_ambiguous);
     }
 
@@ -195,6 +200,11 @@ impl<D: BlockDevice, U: Write> BoardLog<D, U> {
         self.rec.writer_ref().b.as_ref()
     }
 
+    /// The SD side (its state, counts and card).
+    pub fn sd(&self) -> &SdSink<D> {
+        &self.rec.writer_ref().a
+    }
+
     /// The SD card's state.
     pub fn sd_state(&self) -> SdState {
         self.rec.writer_ref().a.state()
@@ -212,6 +222,19 @@ impl<D: BlockDevice, U: Write> BoardLog<D, U> {
     /// debug log.
     pub fn tick(&mut self, t: f64, now_ms: u64) -> (Option<SdState>, Option<LogErrors>) {
         let changed = self.rec.writer().a.poll(now_ms);
+        if let Some(SdState::Logging(file)) = changed {
+            // A remounted card: its new file starts a segment (the spec's second-header
+            // rule; the UART stream gets the header too) and says why.
+            if let Some((hz, field, ambiguous)) = self.header {
+                let _counted = self.rec.header(hz, &field, ambiguous);
+            }
+            self.event(
+                t,
+                "log_error",
+                Some("sd_remount"),
+                &[("file", Detail::Int(i64::from(file)))],
+            );
+        }
         let now = self.counts();
         if now == self.reported {
             return (changed, None);

@@ -125,6 +125,12 @@ pub trait Recoverable: I2c {
     /// the peripheral (also when the clear failed, so that the next check sees the
     /// lines again).
     fn clear_and_reinit(&mut self) -> Result<Cleared, ClearError>;
+    /// Whether a transfer's error left the bus or the peripheral in an unknown state (a
+    /// timeout), so that the bus is cleared at once rather than after
+    /// [`Guarded::ERRORS_BEFORE_RECOVERY`] failures.
+    fn needs_clear(&self, _error: &Self::Error) -> bool {
+        false
+    }
 }
 
 /// Counts of the bus's troubles since boot (shown on the display and logged).
@@ -263,7 +269,7 @@ impl<B: Recoverable> Guarded<B> {
             Err(e) => {
                 self.stats.errors += 1;
                 self.errors_in_row = self.errors_in_row.saturating_add(1);
-                if self.errors_in_row >= Self::ERRORS_BEFORE_RECOVERY {
+                if self.errors_in_row >= Self::ERRORS_BEFORE_RECOVERY || self.bus.needs_clear(&e) {
                     // Whatever the outcome, this transfer failed; the clear is for the
                     // next one.
                     let _ = self.clear();

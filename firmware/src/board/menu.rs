@@ -259,6 +259,7 @@ pub fn draw<D: DrawTarget<Color = BinaryColor>>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::display::{Frame, lit};
     extern crate std;
 
     #[test]
@@ -325,47 +326,17 @@ mod tests {
         }
     }
 
-    /// Counts lit pixels on a 128×64 screen.
-    struct Lit(u32, i32);
-
-    impl OriginDimensions for Lit {
-        fn size(&self) -> Size {
-            Size::new(128, 64)
-        }
-    }
-
-    impl DrawTarget for Lit {
-        type Color = BinaryColor;
-        type Error = core::convert::Infallible;
-        fn draw_iter<I: IntoIterator<Item = Pixel<BinaryColor>>>(
-            &mut self,
-            px: I,
-        ) -> Result<(), Self::Error> {
-            for Pixel(p, c) in px {
-                if c.is_on() && (0..128).contains(&p.x) && (0..64).contains(&p.y) {
-                    self.0 += 1;
-                    self.1 = self.1.max(p.x);
-                }
-            }
-            Ok(())
-        }
-    }
-
     #[test]
     fn draws_only_when_open() {
         let mut m = Menu::new(Settings::DEFAULT);
-        let mut closed = Lit(0, 0);
+        let mut closed = Frame::new();
         assert_eq!(draw(&m, &mut closed), Ok(false));
-        assert_eq!(closed.0, 0);
+        assert_eq!(lit(&closed).count(), 0);
         assert_eq!(m.sound_button(Press::Long), MenuEvent::Opened);
-        let mut open = Lit(0, 0);
+        let mut open = Frame::new();
         assert_eq!(draw(&m, &mut open), Ok(true));
         // Name, value and the hint line: hundreds of pixels, the hint across the width.
-        assert!(
-            open.0 > 200 && open.1 > 100,
-            "{} px to x = {}",
-            open.0,
-            open.1
-        );
+        let (n, right) = (lit(&open).count(), lit(&open).map(|p| p.x).max());
+        assert!(n > 200 && right > Some(100), "{n} px to x = {right:?}");
     }
 }

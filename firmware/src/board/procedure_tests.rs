@@ -4,6 +4,7 @@
 use super::*;
 use crate::Mat3;
 use crate::board::menu::{Menu, MenuEvent, Press};
+use crate::display::{Frame, lit};
 use crate::frame::rotation_from_rpy;
 
 #[test]
@@ -116,44 +117,20 @@ fn a_magnetometer_calibration_without_turning_fails_with_its_reason() {
     assert!(Running::start(Procedure::MagCalibration, 0, 0.0).is_err());
 }
 
-/// Counts lit pixels.
-struct Lit(u32);
-
-impl OriginDimensions for Lit {
-    fn size(&self) -> Size {
-        Size::new(128, 64)
-    }
-}
-
-impl DrawTarget for Lit {
-    type Color = BinaryColor;
-    type Error = core::convert::Infallible;
-    fn draw_iter<I: IntoIterator<Item = Pixel<BinaryColor>>>(
-        &mut self,
-        px: I,
-    ) -> Result<(), Self::Error> {
-        for Pixel(p, c) in px {
-            if c.is_on() && (0..128).contains(&p.x) && (0..64).contains(&p.y) {
-                self.0 += 1;
-            }
-        }
-        Ok(())
-    }
-}
-
 #[test]
 fn the_screens_show_progress_and_outcome() {
-    let mut a = Lit(0);
-    let mut b = Lit(0);
+    let mut a = Frame::new();
+    let mut b = Frame::new();
     assert_eq!(draw(Procedure::StepWalk, 3, &mut a), Ok(()));
     assert_eq!(draw(Procedure::StepWalk, 38, &mut b), Ok(()));
     // One more digit: more pixels.
-    assert!(a.0 > 150 && b.0 > a.0, "{} {}", a.0, b.0);
-    let mut c = Lit(0);
+    let (a, b) = (lit(&a).count(), lit(&b).count());
+    assert!(a > 150 && b > a, "{a} {b}");
+    let mut c = Frame::new();
     let out = Outcome::StepLength {
         length_m: 0.71,
         steps: 28,
     };
     assert_eq!(draw_outcome(&out, &mut c), Ok(()));
-    assert!(c.0 > 150);
+    assert!(lit(&c).count() > 150);
 }

@@ -19,8 +19,9 @@
 //! Errors: the first failed write or flush puts the log in a failed state; every byte
 //! given to it from then on is counted as lost (and the `fmt::Write` calls fail, so the
 //! session-log [`Recorder`](crate::session_log::Recorder) counts the records). The board
-//! shows the failure as an SD fault and may reopen the card ([`SdLog::into_card`], then
-//! [`SdLog::open`]: a new session file).
+//! shows the failure as an SD fault; [`SdSink`] remounts the card every
+//! [`REMOUNT_INTERVAL_MS`] ([`SdLog::into_card`], then [`SdLog::open`]: a new session
+//! file, which the board log starts with a header), [`REMOUNT_TRIES`] times per failure.
 
 use core::cell::{Cell, RefCell};
 use core::ops::ControlFlow;
@@ -38,6 +39,11 @@ pub const FILE_PREFIX: &str = "SESS";
 pub const FILE_EXT: &str = "LOG";
 /// Highest session number (four digits).
 pub const MAX_SESSION: u16 = 9999;
+/// Time between a failure and a remount, and between two remounts that fail, ms (a card
+/// reseated or a glitch passed; long enough that a dead card costs little).
+pub const REMOUNT_INTERVAL_MS: u64 = 5_000;
+/// Remounts tried after a failure before the card is left alone until the next boot.
+pub const REMOUNT_TRIES: u8 = 5;
 
 /// Why the SD log is not writing.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
@@ -352,29 +358,51 @@ impl SdState {
 /// The SD side of the board's session log: the open session file, or why there is none.
 /// As a `fmt::Write` it fails once the card has failed (so every record lost is counted
 /// by the recorder) and takes records silently when no card is inserted (the state says
-/// so on the display).
+/// so on the display). A failed card is remounted into a new session file
+/// ([`SdSink::poll`]).
 pub struct SdSink<D: BlockDevice> {
     log: Option<SdLog<D>>,
+    /// The card of a failed log or mount, kept for the next remount.
+    card: Option<D>,
     state: SdState,
+    /// When the next remount is due, while one is.
+    retry_at_ms: Option<u64>,
+    tries_left: u8,
+    remounts: u32,
+    /// Bytes the logs before the last remount lost.
+    lost_before: u64,
 }
 
 impl<D: BlockDevice> SdSink<D> {
     /// The sink after the boot's mount attempt: `None` when no card is inserted.
     pub fn new(mounted: Option<Result<SdLog<D>, SdError>>) -> Self {
+        let mut sink = Self {
+            log: None,
+            card: None,
+            state: SdState::NoCard,
+            retry_at_ms: None,
+            tries_left: 0,
+            remounts: 0,
+            lost_before: 0,
+        };
         match mounted {
-            None => Self {
-                log: None,
-                state: SdState::NoCard,
-            },
-            Some(Ok(log)) => Self {
-                state: SdState::Logging(log.number()),
-                log: Some(log),
-            },
-            Some(Err(e)) => Self {
-                log: None,
-                state: SdState::Failed(e),
-            },
+            None => {}
+            Some(Ok(log)) => {
+                sink.state = SdState::Logging(log.number());
+                sink.log = Some(log);
+            }
+            Some(Err(e)) => sink.state = SdState::Failed(e),
         }
+        sink
+    }
+
+    /// The sink after a failed boot mount that handed the card back: remounts are tried
+    /// from `now_ms` + [`REMOUNT_INTERVAL_MS`] on.
+    pub fn mount_failed(e: SdError, card: D, now_ms: u64) -> Self {
+        let mut sink = Self::new(Some(Err(e)));
+        sink.card = Some(card);
+        sink.schedule_remounts(now_ms);
+        sink
     }
 
     /// The current state.
@@ -382,20 +410,74 @@ impl<D: BlockDevice> SdSink<D> {
         self.state
     }
 
-    /// The open log's counts (none without a log).
+    /// The open log's counts (none without a log); `lost_bytes` includes what the logs
+    /// before a remount lost.
     pub fn stats(&self) -> Option<SdStats> {
-        self.log.as_ref().map(SdLog::stats)
+        self.log.as_ref().map(|l| SdStats {
+            lost_bytes: l.stats().lost_bytes + self.lost_before,
+            ..l.stats()
+        })
     }
 
-    /// Flushes when due ([`SdLog::poll`]); returns the new state when it changed.
+    /// Remounts that gave a new session file since boot.
+    pub fn remounts(&self) -> u32 {
+        self.remounts
+    }
+
+    /// Runs `f` on the open log's card (the emulated card's controls).
+    pub fn card<R>(&self, f: impl FnOnce(&mut D) -> R) -> Option<R> {
+        self.log.as_ref().map(|l| l.card(f))
+    }
+
+    fn schedule_remounts(&mut self, now_ms: u64) {
+        self.tries_left = REMOUNT_TRIES;
+        self.retry_at_ms = Some(now_ms.saturating_add(REMOUNT_INTERVAL_MS));
+    }
+
+    /// Flushes when due ([`SdLog::poll`]); after a failure, remounts the card when due
+    /// (a new session file: the state becomes `Logging` with its number). Returns the new
+    /// state when it changed.
     pub fn poll(&mut self, now_ms: u64) -> Option<SdState> {
-        let log = self.log.as_mut()?;
-        match log.poll(now_ms) {
-            Err(e) if self.state != SdState::Failed(e) => {
-                self.state = SdState::Failed(e);
+        if let Some(log) = self.log.as_mut()
+            && let Err(e) = log.poll(now_ms)
+            && self.state != SdState::Failed(e)
+        {
+            self.state = SdState::Failed(e);
+            self.schedule_remounts(now_ms);
+            return Some(self.state);
+        }
+        match self.retry_at_ms {
+            Some(at) if now_ms >= at => self.remount(now_ms),
+            _ => None,
+        }
+    }
+
+    fn remount(&mut self, now_ms: u64) -> Option<SdState> {
+        let card = match self.log.take() {
+            Some(log) => {
+                self.lost_before += log.stats().lost_bytes;
+                // The failed log's flush fails; its handles close with it.
+                log.into_card(now_ms).0
+            }
+            None => self.card.take()?,
+        };
+        match SdLog::open(card, now_ms) {
+            Ok(log) => {
+                self.state = SdState::Logging(log.number());
+                self.log = Some(log);
+                self.retry_at_ms = None;
+                self.remounts += 1;
                 Some(self.state)
             }
-            _ => None,
+            Err((e, card)) => {
+                self.card = Some(card);
+                self.tries_left = self.tries_left.saturating_sub(1);
+                self.retry_at_ms =
+                    (self.tries_left > 0).then(|| now_ms.saturating_add(REMOUNT_INTERVAL_MS));
+                let changed = self.state != SdState::Failed(e);
+                self.state = SdState::Failed(e);
+                changed.then_some(self.state)
+            }
         }
     }
 }
@@ -465,6 +547,11 @@ impl<'a> RamCard<'a> {
     /// Fails every transfer once `n` blocks have been written.
     pub fn fail_at(&self, n: u64) {
         self.fail_at.set(Some(n));
+    }
+
+    /// Ends a [`RamCard::fail_at`] failure (the card reseated, the glitch passed).
+    pub fn repair(&self) {
+        self.fail_at.set(None);
     }
 
     fn range(

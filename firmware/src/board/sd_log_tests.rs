@@ -367,3 +367,141 @@ fn the_sink_reports_its_state_and_fails_only_with_a_failed_card() {
     assert!(ok.write_str("x").is_err());
     assert!(ok.stats().unwrap().lost_bytes > 0);
 }
+
+/// Lines of a session file (each must be whole).
+fn lines_of(bytes: &[u8]) -> Vec<String> {
+    let text = String::from_utf8(bytes.to_vec()).unwrap();
+    assert!(text.is_empty() || text.ends_with('\n'), "a torn last line");
+    text.lines().map(String::from).collect()
+}
+
+#[test]
+fn a_failed_card_is_remounted_into_a_new_file_that_starts_with_a_header() {
+    use crate::board::board_log::BoardLog;
+    let mut img = formatted(4, fatfs::FatType::Fat16);
+    let (mut states, mut fail_ms, mut repair_ms) = (Vec::new(), None, None);
+    {
+        let card = RamCard::new(&mut img);
+        let sink = SdSink::new(Some(SdLog::open(card, 0).map_err(|(e, _)| e)));
+        let mut log: BoardLog<RamCard<'_>, String> = BoardLog::new(sink, None);
+        log.header(100.0, &Vec3::new(21.0, 0.0, -42.0), true);
+        for tick in 0..3000u64 {
+            let now = tick * 10;
+            let t = now as f64 / 1000.0;
+            if tick == 300 {
+                // The card stops answering from its next block write.
+                log.sd().card(|c| c.fail_at(c.writes()));
+            }
+            if tick == 1200 {
+                // Reseated (or the glitch passed): the next remount gets it back.
+                assert!(log.sd().log.is_none(), "the failed log was closed");
+                if let Some(c) = &log.sd().card {
+                    c.repair();
+                }
+                repair_ms = Some(now);
+            }
+            log.imu(t, &Vec3::zeros(), &Vec3::zeros(), None);
+            if let (Some(s), _) = log.tick(t, now) {
+                if matches!(s, SdState::Failed(_)) && fail_ms.is_none() {
+                    fail_ms = Some(now);
+                }
+                states.push((now, s));
+            }
+        }
+        assert_eq!(log.sd().remounts(), 1);
+        assert_eq!(log.sd_state(), SdState::Logging(2));
+    }
+    let (fail_ms, repair_ms) = (fail_ms.unwrap(), repair_ms.unwrap());
+    // Failed within a flush interval of the card's failure, remounted at the first try
+    // after the repair (tries every 5 s from the failure on).
+    assert!(
+        (3000..=3000 + FLUSH_INTERVAL_MS + 10).contains(&fail_ms),
+        "{states:?}"
+    );
+    let remounted = states
+        .iter()
+        .find(|(_, s)| *s == SdState::Logging(2))
+        .map(|(t, _)| *t)
+        .unwrap();
+    assert!(
+        remounted >= repair_ms && remounted < repair_ms + REMOUNT_INTERVAL_MS,
+        "{states:?}"
+    );
+    assert_eq!((remounted - fail_ms) % REMOUNT_INTERVAL_MS, 0, "{states:?}");
+
+    let first = lines_of(&read_back(&mut img, "SESS0001.LOG").unwrap());
+    let second = lines_of(&read_back(&mut img, "SESS0002.LOG").unwrap());
+    assert!(first[0].starts_with("{\"type\":\"header\""), "{}", first[0]);
+    // The first file holds what was flushed before the failure (≥ 2.5 s of records).
+    assert!(first.len() > 250, "{} lines", first.len());
+    // The second starts a new segment, says why, and goes on to the end (the last
+    // flush is at most 0.5 s old).
+    assert!(
+        second[0].starts_with("{\"type\":\"header\""),
+        "{}",
+        second[0]
+    );
+    assert!(
+        second[1].contains("\"why\":\"sd_remount\",\"file\":2"),
+        "{}",
+        second[1]
+    );
+    let t = |l: &str| -> f64 {
+        let at = l.find("\"t\":").unwrap() + 4;
+        l[at..].split(',').next().unwrap().parse().unwrap()
+    };
+    let imu: Vec<f64> = second
+        .iter()
+        .filter(|l| l.contains("\"imu\""))
+        .map(|l| t(l))
+        .collect();
+    assert!(
+        imu.first()
+            .is_some_and(|&t0| t0 * 1000.0 >= remounted as f64 - 10.0)
+    );
+    assert!(imu.last().is_some_and(|&t1| t1 >= 29.4), "{:?}", imu.last());
+    // No record is cut: every line of both files is whole JSON with its seq.
+    for l in first.iter().chain(&second) {
+        assert!(
+            l.starts_with('{') && l.ends_with('}') && l.contains("\"seq\":"),
+            "{l}"
+        );
+    }
+}
+
+#[test]
+fn a_card_that_stays_dead_is_tried_a_few_times_then_left_alone() {
+    use core::fmt::Write;
+    let mut img = formatted(4, fatfs::FatType::Fat16);
+    let card = RamCard::new(&mut img);
+    card.fail_at(2);
+    let mut sink = SdSink::new(Some(SdLog::open(card, 0).map_err(|(e, _)| e)));
+    let mut tries = 0;
+    for tick in 0..12_000u64 {
+        let _ = sink.write_str("{\"type\":\"imu\",\"t\":0}\n");
+        let before = sink.tries_left;
+        sink.poll(tick * 10);
+        tries += usize::from(sink.tries_left < before);
+    }
+    assert_eq!(tries, usize::from(REMOUNT_TRIES));
+    assert!(matches!(sink.state(), SdState::Failed(_)));
+    assert_eq!((sink.retry_at_ms, sink.remounts()), (None, 0));
+    assert!(sink.card.is_some(), "the card is kept");
+}
+
+#[test]
+fn a_card_refused_at_boot_is_mounted_once_it_answers() {
+    let mut img = formatted(4, fatfs::FatType::Fat16);
+    let card = RamCard::new(&mut img);
+    card.fail_at(0);
+    let Err((e, card)) = SdLog::open(card, 0) else {
+        panic!("mounted a failing card");
+    };
+    assert_eq!(e, SdError::Card);
+    let mut sink = SdSink::mount_failed(e, card, 0);
+    assert_eq!(sink.poll(REMOUNT_INTERVAL_MS - 1), None);
+    if let Some(c) = &sink.card {
+        c.repair();
+    }
+    assert_eq!(sink.poll(REMOUNT_INTERVAL_MS), Some(SdState::Logging(1)));
+}

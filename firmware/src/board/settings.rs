@@ -14,13 +14,13 @@
 use crate::Vec3;
 use crate::calibration::record::{CalibrationRecord, RECORD_LEN, RecordError, crc32};
 
-/// Where the block is stored: the start of flash sector 11 of the STM32F405 (the last,
-/// 128 KB; `memory.x` ends the program's FLASH region before it). Erasing it takes up to
-/// 2 s (RM0090 / datasheet: sector erase 128 KB, ×32 parallelism, typ. 1 s, max. 2 s)
-/// with instruction fetch stalled, longer than the 1 s watchdog period.
-pub const SETTINGS_ADDR: u32 = 0x080E_0000;
-/// The flash sector holding the settings.
-pub const SETTINGS_SECTOR: u8 = 11;
+/// Where the blocks are stored: the start of flash sectors 10 and 11 of the STM32F405 (the
+/// last two, 128 KB each, used in turn by [`super::settings_store`]; `memory.x` ends the
+/// program's FLASH region before them). Erasing one takes up to 2–4 s with instruction
+/// fetch stalled, longer than the 1 s watchdog period (docs/board.md).
+pub const SETTINGS_ADDR: u32 = 0x080C_0000;
+/// The flash sectors holding the settings.
+pub const SETTINGS_SECTORS: [u8; 2] = [10, 11];
 /// Bytes of the stored block.
 pub const SETTINGS_LEN: usize = 144;
 /// Start of a settings block.
@@ -33,9 +33,10 @@ const CAL_AT: usize = 12;
 const CRC_AT: usize = CAL_AT + RECORD_LEN;
 
 /// A region's local geomagnetic field in W (x magnetic north, y west, z up; µT), the
-/// header's `earth_field_uT`. Rounded from the IGRF at one place of each region (the
-/// field varies by a few µT across a region; the estimator uses it for the heading's
-/// reference and the magnetometer's plausibility).
+/// header's `earth_field_uT`: one value near the middle of the region's range in the IGRF-14
+/// model (2026.0; the field varies by up to 5 µT across a region, see the test
+/// `regions_match_the_igrf_model`). The estimator uses it for the heading's reference and
+/// the magnetometer's plausibility.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Region {
     /// Name on the display (at most 10 characters).
@@ -52,7 +53,7 @@ pub const REGIONS: [Region; 4] = [
     },
     Region {
         name: "ROCKIES",
-        earth_field_ut: [21.4, 0.0, -47.0],
+        earth_field_ut: [19.2, 0.0, -48.5],
     },
     Region {
         name: "NORWAY",
@@ -60,7 +61,7 @@ pub const REGIONS: [Region; 4] = [
     },
     Region {
         name: "NZ ALPS",
-        earth_field_ut: [21.5, 0.0, 53.0],
+        earth_field_ut: [20.6, 0.0, 53.9],
     },
 ];
 
@@ -321,11 +322,12 @@ mod tests {
                 .unwrap_or_else(|| panic!("{name} not in memory.x"))
                 .replace(' ', "")
         };
-        assert!(line("FLASH ").contains("ORIGIN=0x08000000,LENGTH=896K"));
+        assert!(line("FLASH ").contains("ORIGIN=0x08000000,LENGTH=768K"));
         assert!(line("SETTINGS ").contains(
-            &std::format!("ORIGIN={SETTINGS_ADDR:#010X},LENGTH=128K").replace("0X", "0x")
+            &std::format!("ORIGIN={SETTINGS_ADDR:#010X},LENGTH=256K").replace("0X", "0x")
         ));
-        assert_eq!(0x0800_0000 + 896 * 1024, SETTINGS_ADDR);
+        assert_eq!(0x0800_0000 + 768 * 1024, SETTINGS_ADDR);
+        assert_eq!(SETTINGS_SECTORS, [10, 11]);
     }
 
     #[test]
@@ -337,5 +339,87 @@ mod tests {
             assert!((40.0..65.0).contains(&m), "{}: {m} µT", r.name);
             assert!(r.name.len() <= 10);
         }
+    }
+
+    /// IGRF-14 at 2026.0, 1.5 km altitude, at places of each region where people search
+    /// avalanches: (region, place, horizontal = north µT, up µT). From ppigrf 2.1.0, the
+    /// script in docs/board.md ("Regions").
+    const IGRF14_2026: [(&str, &str, f32, f32); 23] = [
+        ("ALPS", "Chamonix", 22.44, -42.16),
+        ("ALPS", "Engadin", 22.03, -42.82),
+        ("ALPS", "Innsbruck", 21.57, -43.43),
+        ("ALPS", "Hohe Tauern", 21.65, -43.43),
+        ("ALPS", "Maritime Alps", 23.41, -41.01),
+        ("ALPS", "Rax", 21.22, -44.10),
+        ("ROCKIES", "Colorado Front Range", 20.97, -46.39),
+        ("ROCKIES", "San Juans", 21.86, -44.61),
+        ("ROCKIES", "Wasatch", 21.03, -46.12),
+        ("ROCKIES", "Tetons", 19.60, -48.59),
+        ("ROCKIES", "Glacier NP", 17.47, -51.44),
+        ("ROCKIES", "Rogers Pass", 16.58, -52.33),
+        ("NORWAY", "Hardanger", 15.11, -49.13),
+        ("NORWAY", "Jotunheimen", 14.40, -49.73),
+        ("NORWAY", "Sunnmore", 14.11, -49.91),
+        ("NORWAY", "Trollheimen", 13.85, -50.18),
+        ("NORWAY", "Lofoten", 11.47, -52.06),
+        ("NORWAY", "Lyngen", 10.79, -52.80),
+        ("NZ ALPS", "Aoraki", 20.60, 53.99),
+        ("NZ ALPS", "Arthur's Pass", 21.09, 53.13),
+        ("NZ ALPS", "Nelson Lakes", 21.75, 52.03),
+        ("NZ ALPS", "Fiordland", 19.37, 55.81),
+        ("NZ ALPS", "Remarkables", 19.67, 55.33),
+    ];
+    /// Secular variation allowance: the field drifts ≲ 0.1 µT a year in these regions, so
+    /// the model's values hold to 0.5 µT until about 2030.
+    const DRIFT_UT: f32 = 0.5;
+    /// Largest difference between a region's value and the field anywhere in it (≈ 10 %
+    /// of the field: an inclination error of ≲ 3°).
+    const SPREAD_UT: f32 = 5.0;
+
+    #[test]
+    fn regions_match_the_igrf_model() {
+        for r in REGIONS {
+            let places: std::vec::Vec<_> = IGRF14_2026.iter().filter(|p| p.0 == r.name).collect();
+            assert!(places.len() >= 5, "{}: no model places", r.name);
+            let [x, y, z] = r.earth_field_ut;
+            // x is magnetic north: nothing west.
+            assert_eq!(y, 0.0, "{}", r.name);
+            // Inside the range the model gives over the region (its box, ± drift).
+            let (h_lo, h_hi, u_lo, u_hi) = places.iter().fold(
+                (f32::MAX, f32::MIN, f32::MAX, f32::MIN),
+                |(a, b, c, d), p| (a.min(p.2), b.max(p.2), c.min(p.3), d.max(p.3)),
+            );
+            assert!(
+                (h_lo - DRIFT_UT..=h_hi + DRIFT_UT).contains(&x),
+                "{}: north {x} µT outside the model's {h_lo}..{h_hi}",
+                r.name
+            );
+            assert!(
+                (u_lo - DRIFT_UT..=u_hi + DRIFT_UT).contains(&z),
+                "{}: up {z} µT outside the model's {u_lo}..{u_hi}",
+                r.name
+            );
+            // And close enough to every place of the region.
+            for p in &places {
+                let d = ((x - p.2).powi(2) + (z - p.3).powi(2)).sqrt();
+                assert!(d <= SPREAD_UT, "{} at {}: {d} µT off", r.name, p.1);
+            }
+        }
+    }
+
+    #[test]
+    fn the_model_check_fails_for_a_field_off_its_region() {
+        // Norway's field given for the Alps, and a sign slip (the southern hemisphere's
+        // up field in the north), each land outside the model's range.
+        let inside = |name: &str, x: f32, z: f32| {
+            IGRF14_2026
+                .iter()
+                .filter(|p| p.0 == name)
+                .all(|p| ((x - p.2).powi(2) + (z - p.3).powi(2)).sqrt() <= SPREAD_UT)
+        };
+        assert!(inside("ALPS", 21.79, -42.77));
+        assert!(!inside("ALPS", 12.5, -50.5));
+        assert!(!inside("NORWAY", 12.5, 50.5));
+        assert!(!inside("ROCKIES", 21.4, -42.0));
     }
 }

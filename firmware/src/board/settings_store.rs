@@ -1,56 +1,81 @@
-//! The settings in flash, safe against a power cut at any moment: an append-only log of
-//! [`Settings`] blocks in one erase unit (on the board: sector 11, 128 KB, 910 slots of
-//! [`SETTINGS_LEN`] bytes), over any [`NorFlash`] (embedded-storage: the HAL's flash on the
-//! board, an emulation in the tests).
+//! The settings in flash, safe against a power cut at any moment: two erase units (on the
+//! board flash sectors 10 and 11, 128 KB each, [`SLOT_LEN`]-byte slots, 819 per sector)
+//! used in turn, over any [`NorFlash`] (embedded-storage: the HAL's flash on the board,
+//! an emulation in the tests).
 //!
-//! - **Save** writes the block to the first erased slot after the used ones, reads it back
-//!   and compares (a slot that does not read back is skipped, the next one tried). Only
-//!   when every slot is used is the area erased first: one erase per 910 saves, so the
-//!   erase's stall (up to 2–4 s on the STM32F405, instruction fetch stopped; see
-//!   docs/board.md) is rare, and a save is usually a 144-byte program (≈ 2 ms).
-//! - **Load** scans the used slots from the start (they form a prefix: the writer never
-//!   leaves an erased slot behind it) and takes the newest block that decodes (magic,
-//!   version, CRC-32, ranges: [`Settings::decode`]).
+//! Each slot holds a [`Settings`] block, a save counter (`seq`) and a CRC-32 over both.
+//! - **Load** takes the valid slot with the highest `seq` in either sector (a slot is
+//!   valid when its CRC and the block's own checks pass: [`Settings::decode`]).
+//! - **Save** appends `seq + 1` after the last written slot of the sector holding the
+//!   newest block, reads it back and compares (a slot that does not read back is
+//!   skipped). When that sector is full, the *other* sector is erased (unless it is
+//!   erased already) and the block goes to its first slot: the sector with the newest
+//!   block is never erased, so a cut in the erase or between the erase and the program
+//!   leaves the newest block where it was. One erase per 819 saves: the erase's stall
+//!   (up to 2–4 s on the STM32F405, instruction fetch stopped; docs/board.md) is rare,
+//!   and a save is usually a 160-byte program (≈ 2 ms).
 //!
-//! What a cut leaves: during a program, a torn newest slot that fails its CRC, so the
-//! previous settings load; during the erase (or between the erase and the program), an
-//! area partly erased, partly old or garbage: the old settings (an old block the scan
-//! still reaches) or the defaults (the scan stops at an erased first slot). Never garbage:
-//! a block is taken only when its CRC matches. Old blocks an interrupted erase left after
-//! the first erased slot would later be taken for newer ones, so a save that finds any
-//! slot after the used ones not erased erases first. `cargo test -p firmware
-//! board::settings_store` cuts the power at every byte written and every erase step.
+//! What a cut leaves: during a program, a torn slot that fails its CRC, so the previous
+//! settings load; during an erase, a sector of old blocks (lower `seq`), garbage and
+//! erased cells beside the untouched sector with the newest block, which loads. So a load
+//! after a cut gives the last saved settings or the ones being saved, never an older
+//! save and never garbage (defaults only before the first save completes). `cargo test
+//! -p firmware board::settings_store` cuts the power at every byte written and every
+//! erase step, through sector switches.
 
 use crate::board::settings::{SETTINGS_ADDR, SETTINGS_LEN, Settings, SettingsError};
+use crate::calibration::record::crc32;
 use embedded_storage::nor_flash::{NorFlash, ReadNorFlash};
 
 /// Start of the STM32F405's flash in the address map: offset 0 of its flash driver.
 pub const FLASH_BASE: u32 = 0x0800_0000;
-/// The board's settings area: flash sector 11 (128 KB; `memory.x` keeps the program out).
-pub const BOARD_AREA: Area = Area {
-    offset: SETTINGS_ADDR - FLASH_BASE,
-    len: 128 * 1024,
+/// Bytes of one slot: the settings block, `seq` (u32), CRC-32 of both, zero padding to a
+/// 16-byte flash row (the HAL programs rows of 16 bytes).
+pub const SLOT_LEN: usize = 160;
+const SEQ_AT: usize = SETTINGS_LEN;
+const CRC_AT: usize = SEQ_AT + 4;
+const PAD_AT: usize = CRC_AT + 4;
+/// The board's settings: flash sectors 10 and 11 (128 KB each; `memory.x` keeps the
+/// program out).
+pub const BOARD_AREA: Areas = Areas {
+    sectors: [
+        Area {
+            offset: SETTINGS_ADDR - FLASH_BASE,
+            len: 128 * 1024,
+        },
+        Area {
+            offset: SETTINGS_ADDR - FLASH_BASE + 128 * 1024,
+            len: 128 * 1024,
+        },
+    ],
 };
 
-/// Where the settings live in a flash: `len` bytes from `offset` (offsets as the flash
-/// driver counts them; on the board from the start of the flash, 0x0800_0000).
+/// One erase unit of the store: `len` bytes from `offset` (offsets as the flash driver
+/// counts them; on the board from the start of the flash, 0x0800_0000).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Area {
     /// First byte of the area (a multiple of the flash's erase size).
     pub offset: u32,
-    /// Bytes of the area (a multiple of the erase size, at least one block).
+    /// Bytes of the area (a multiple of the erase size, at least one slot).
     pub len: u32,
 }
 
 impl Area {
-    /// Whole blocks the area holds.
+    /// Whole slots the area holds.
     pub fn slots(&self) -> u32 {
-        self.len / SETTINGS_LEN as u32
+        self.len / SLOT_LEN as u32
     }
 
     fn slot_offset(&self, k: u32) -> u32 {
-        self.offset + k * SETTINGS_LEN as u32
+        self.offset + k * SLOT_LEN as u32
     }
+}
+
+/// The two erase units used in turn (never overlapping, each its own erase).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Areas {
+    /// The sectors; a slot's number counts the first sector's slots first.
+    pub sectors: [Area; 2],
 }
 
 /// Why the store could not read or save.
@@ -131,63 +156,98 @@ pub struct Saved {
     pub unchanged: bool,
 }
 
-/// The layout's checks: alignment to the flash's sizes, room for a block, within the
-/// flash.
+/// The layout's checks: alignment to the flash's sizes, room for a slot, within the
+/// flash, the two sectors apart.
 fn check<F: ReadNorFlash>(
     flash: &F,
-    area: Area,
+    areas: Areas,
     erase: usize,
     write: usize,
 ) -> Result<(), StoreError> {
-    let (off, len) = (area.offset as usize, area.len as usize);
     let aligned = |n: usize, to: usize| to != 0 && n.is_multiple_of(to);
-    let ok = aligned(off, erase)
-        && aligned(len, erase)
-        && aligned(SETTINGS_LEN, write)
-        && aligned(SETTINGS_LEN, F::READ_SIZE)
-        && len >= SETTINGS_LEN
-        && off
-            .checked_add(len)
-            .is_some_and(|end| end <= flash.capacity());
+    let one = |a: Area| {
+        let (off, len) = (a.offset as usize, a.len as usize);
+        aligned(off, erase)
+            && aligned(len, erase)
+            && len >= SLOT_LEN
+            && off
+                .checked_add(len)
+                .is_some_and(|end| end <= flash.capacity())
+    };
+    let [a, b] = areas.sectors;
+    let apart =
+        a.offset.saturating_add(a.len) <= b.offset || b.offset.saturating_add(b.len) <= a.offset;
+    let ok = one(a)
+        && one(b)
+        && apart
+        && a.slots() == b.slots()
+        && aligned(SLOT_LEN, write)
+        && aligned(SLOT_LEN, F::READ_SIZE);
     if ok { Ok(()) } else { Err(StoreError::Layout) }
 }
 
-/// The area's used slots: the newest that decodes, how many are used (the prefix of
-/// slots not fully erased), the newest used slot's error when none decodes, and whether
-/// any slot after the used ones is not erased (an erase the power cut short).
-struct Scan {
-    newest: Option<(u32, Settings)>,
-    used: u32,
-    last_error: Option<SettingsError>,
-    dirty: bool,
+/// The slot holding `block` as save number `seq`.
+fn encode_slot(seq: u32, block: &[u8; SETTINGS_LEN]) -> [u8; SLOT_LEN] {
+    let mut slot = [0u8; SLOT_LEN];
+    slot[..SETTINGS_LEN].copy_from_slice(block);
+    slot[SEQ_AT..CRC_AT].copy_from_slice(&seq.to_le_bytes());
+    let crc = crc32(&slot[..CRC_AT]);
+    slot[CRC_AT..PAD_AT].copy_from_slice(&crc.to_le_bytes());
+    slot
 }
 
-fn scan<F: ReadNorFlash>(flash: &mut F, area: Area) -> Result<Scan, StoreError> {
-    let mut s = Scan {
+/// A slot's save number and settings, or why it is not taken.
+fn decode_slot(slot: &[u8; SLOT_LEN]) -> Result<(u32, Settings), SettingsError> {
+    if slot.iter().all(|&b| b == 0xFF) {
+        return Err(SettingsError::Erased);
+    }
+    let word = |at: usize| {
+        slot.get(at..at + 4)
+            .and_then(|w| w.try_into().ok())
+            .map(u32::from_le_bytes)
+    };
+    let (Some(seq), Some(crc)) = (word(SEQ_AT), word(CRC_AT)) else {
+        return Err(SettingsError::Length);
+    };
+    // A block of 0xFF beside written bytes is garbage, not an erased slot.
+    let settings = Settings::decode(&slot[..SETTINGS_LEN]).map_err(|e| match e {
+        SettingsError::Erased => SettingsError::Crc,
+        e => e,
+    })?;
+    if crc != crc32(&slot[..CRC_AT]) || slot[PAD_AT..].iter().any(|&b| b != 0) {
+        return Err(SettingsError::Crc);
+    }
+    Ok((seq, settings))
+}
+
+/// One sector's slots: its newest valid block (`seq`, slot, settings), how many slots
+/// are written (up to the last one not erased), the last written slot's error when it
+/// is not valid.
+#[derive(Debug, Clone, Copy)]
+struct SectorScan {
+    newest: Option<(u32, u32, Settings)>,
+    used: u32,
+    last_error: Option<SettingsError>,
+}
+
+fn scan_sector<F: ReadNorFlash>(flash: &mut F, area: Area) -> Result<SectorScan, StoreError> {
+    let mut s = SectorScan {
         newest: None,
         used: 0,
         last_error: None,
-        dirty: false,
     };
-    let mut block = [0u8; SETTINGS_LEN];
-    let mut ended = false;
+    let mut slot = [0u8; SLOT_LEN];
     for k in 0..area.slots() {
         flash
-            .read(area.slot_offset(k), &mut block)
+            .read(area.slot_offset(k), &mut slot)
             .map_err(|_| StoreError::Read)?;
-        let decoded = Settings::decode(&block);
-        if ended {
-            s.dirty |= decoded != Err(SettingsError::Erased);
-            continue;
-        }
-        match decoded {
-            // The first erased slot ends the used ones.
-            Err(SettingsError::Erased) => {
-                ended = true;
-                continue;
-            }
-            Ok(settings) => {
-                s.newest = Some((k, settings));
+        match decode_slot(&slot) {
+            Err(SettingsError::Erased) => continue,
+            Ok((seq, settings)) => {
+                // A later slot with the same `seq` is a retry after a failed read-back.
+                if s.newest.is_none_or(|(n, _, _)| seq >= n) {
+                    s.newest = Some((seq, k, settings));
+                }
                 s.last_error = None;
             }
             Err(e) => s.last_error = Some(e),
@@ -197,9 +257,31 @@ fn scan<F: ReadNorFlash>(flash: &mut F, area: Area) -> Result<Scan, StoreError> 
     Ok(s)
 }
 
-/// The newest stored settings in `area`, or the defaults with the reason. Never fails:
-/// a flash that cannot be read gives the defaults too.
-pub fn load<F: ReadNorFlash>(flash: &mut F, area: Area) -> Loaded {
+/// Element `i` (0 or 1; 1 for anything else) of a pair.
+fn of<T: Copy>(pair: [T; 2], i: usize) -> T {
+    let [a, b] = pair;
+    if i == 0 { a } else { b }
+}
+
+/// Both sectors, and which one holds the newest block (the first when none does).
+struct Scan {
+    sectors: [SectorScan; 2],
+    active: usize,
+}
+
+fn scan<F: ReadNorFlash>(flash: &mut F, areas: Areas) -> Result<Scan, StoreError> {
+    let sectors = [
+        scan_sector(flash, areas.sectors[0])?,
+        scan_sector(flash, areas.sectors[1])?,
+    ];
+    let seq = |s: &SectorScan| s.newest.map(|(n, _, _)| n);
+    let active = usize::from(seq(&sectors[1]) > seq(&sectors[0]));
+    Ok(Scan { sectors, active })
+}
+
+/// The newest stored settings, or the defaults with the reason. Never fails: a flash that
+/// cannot be read gives the defaults too.
+pub fn load<F: ReadNorFlash>(flash: &mut F, areas: Areas) -> Loaded {
     let defaults = |e| Loaded {
         settings: Settings::DEFAULT,
         defaults_because: Some(e),
@@ -207,94 +289,97 @@ pub fn load<F: ReadNorFlash>(flash: &mut F, area: Area) -> Loaded {
         used: 0,
         torn: 0,
     };
-    if let Err(e) = check(flash, area, 1, 1) {
+    if let Err(e) = check(flash, areas, 1, 1) {
         return defaults(LoadError::Store(e));
     }
-    match scan(flash, area) {
-        Err(e) => defaults(LoadError::Store(e)),
-        Ok(Scan {
-            newest: Some((k, settings)),
-            used,
-            ..
-        }) => Loaded {
+    let found = match scan(flash, areas) {
+        Err(e) => return defaults(LoadError::Store(e)),
+        Ok(found) => found,
+    };
+    let s = of(found.sectors, found.active);
+    match s.newest {
+        Some((_, k, settings)) => Loaded {
             settings,
             defaults_because: None,
-            slot: Some(k),
-            used,
-            torn: used - k - 1,
+            slot: Some(found.active as u32 * areas.sectors[0].slots() + k),
+            used: s.used,
+            torn: s.used - k - 1,
         },
-        Ok(Scan {
-            newest: None,
-            used,
-            last_error,
-            ..
-        }) => Loaded {
-            used,
-            torn: used,
-            ..defaults(LoadError::Settings(
-                last_error.unwrap_or(SettingsError::Erased),
-            ))
-        },
+        None => {
+            let last_error = found.sectors[1].last_error.or(found.sectors[0].last_error);
+            Loaded {
+                used: s.used,
+                torn: found.sectors[0].used + found.sectors[1].used,
+                ..defaults(LoadError::Settings(
+                    last_error.unwrap_or(SettingsError::Erased),
+                ))
+            }
+        }
     }
 }
 
-/// Stores `settings` in `area` (see the module doc): the next erased slot, read back and
-/// compared; the area erased first when no slot is left. Settings equal to the newest
-/// stored ones are not written again.
+/// Stores `settings` (see the module doc): appended after the newest block's sector's
+/// written slots, read back and compared; when that sector is full, the other one is
+/// erased and takes it. Settings equal to the newest stored ones are not written again.
 pub fn save<F: NorFlash>(
     flash: &mut F,
-    area: Area,
+    areas: Areas,
     settings: &Settings,
 ) -> Result<Saved, StoreError> {
-    check(flash, area, F::ERASE_SIZE, F::WRITE_SIZE)?;
-    let block = settings.encode();
-    let found = scan(flash, area)?;
-    if let Some((slot, s)) = found.newest
+    check(flash, areas, F::ERASE_SIZE, F::WRITE_SIZE)?;
+    let found = scan(flash, areas)?;
+    let per = areas.sectors[0].slots();
+    let active = of(found.sectors, found.active);
+    if let Some((_, k, s)) = active.newest
         && s == *settings
-        && slot + 1 == found.used
+        && k + 1 == active.used
     {
         return Ok(Saved {
-            slot,
+            slot: found.active as u32 * per + k,
             erased: false,
             skipped: 0,
             unchanged: true,
         });
     }
-    // Old blocks left after the used slots (an erase cut short) would be taken for newer
-    // ones once the slots before them are used again: erase first.
+    let seq = active.newest.map_or(0, |(n, _, _)| n.wrapping_add(1));
+    let slot = encode_slot(seq, &settings.encode());
+    let mut sector = found.active;
+    let mut k = active.used;
     let mut saved = Saved {
-        slot: if found.dirty {
-            area.slots()
-        } else {
-            found.used
-        },
+        slot: 0,
         erased: false,
         skipped: 0,
         unchanged: false,
     };
-    let mut back = [0u8; SETTINGS_LEN];
-    // Every slot at most once, plus the whole area again after the erase.
-    for _ in 0..2 * area.slots() + 1 {
-        if saved.slot >= area.slots() {
-            if saved.erased {
+    let mut back = [0u8; SLOT_LEN];
+    // Every slot of the sector at most once, plus the other sector after its erase.
+    for _ in 0..2 * per + 1 {
+        if k >= per {
+            if sector != found.active {
                 break;
             }
-            flash
-                .erase(area.offset, area.offset + area.len)
-                .map_err(|_| StoreError::Erase)?;
-            saved.erased = true;
-            saved.slot = 0;
+            // Never erase the sector with the newest block: the other one takes over.
+            sector = 1 - found.active;
+            if of(found.sectors, sector).used > 0 {
+                let a = of(areas.sectors, sector);
+                flash
+                    .erase(a.offset, a.offset + a.len)
+                    .map_err(|_| StoreError::Erase)?;
+                saved.erased = true;
+            }
+            k = 0;
         }
-        let at = area.slot_offset(saved.slot);
-        flash.write(at, &block).map_err(|_| StoreError::Write)?;
+        let at = of(areas.sectors, sector).slot_offset(k);
+        flash.write(at, &slot).map_err(|_| StoreError::Write)?;
         flash.read(at, &mut back).map_err(|_| StoreError::Read)?;
-        if back == block {
+        if back == slot {
+            saved.slot = sector as u32 * per + k;
             return Ok(saved);
         }
-        // A slot that does not hold what was written (a weak cell): it stays used, and
-        // fails its CRC at the next load; the next slot is tried.
+        // A slot that does not hold what was written (a weak cell): it fails its CRC at
+        // the next load; the next slot is tried.
         saved.skipped += 1;
-        saved.slot += 1;
+        k += 1;
     }
     Err(StoreError::Verify)
 }

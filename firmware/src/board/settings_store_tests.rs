@@ -1,7 +1,7 @@
 //! The settings store against an emulated NOR flash whose power can be cut at any byte
 //! programmed and at any step of an erase: after the cut (a reboot: the same memory, a
-//! fresh driver) the settings read are the old ones, the new ones or the defaults, never
-//! anything else, and the next save works.
+//! fresh driver) the settings read are the last saved ones or the ones being saved, never
+//! an older save, the defaults or garbage, and the next saves work.
 
 use super::*;
 use crate::board::settings::{MAX_VOLUME, REGIONS, SearchMode};
@@ -141,12 +141,23 @@ impl NorFlash for SimFlash<'_> {
     }
 }
 
-/// The area: two erase units after one unit of something else (the program, say).
-const AREA: Area = Area {
-    offset: ERASE as u32,
-    len: 2 * ERASE as u32,
+/// The store: two erase units after one unit of something else (the program, say), and
+/// one unit after them.
+const AREA: Areas = Areas {
+    sectors: [
+        Area {
+            offset: ERASE as u32,
+            len: ERASE as u32,
+        },
+        Area {
+            offset: 2 * ERASE as u32,
+            len: ERASE as u32,
+        },
+    ],
 };
 const FLASH_LEN: usize = 4 * ERASE;
+/// Slots per sector in the tests.
+const PER: u32 = (ERASE / SLOT_LEN) as u32;
 
 fn settings(n: u32) -> Settings {
     Settings {
@@ -169,7 +180,7 @@ fn erased() -> Vec<u8> {
 }
 
 #[test]
-fn saves_load_newest_first_and_erase_once_per_full_area() {
+fn saves_load_newest_first_and_erase_once_per_full_sector() {
     let mut mem = erased();
     let mut f = SimFlash::new(&mut mem, None, 1);
     let first = load(&mut f, AREA);
@@ -178,24 +189,25 @@ fn saves_load_newest_first_and_erase_once_per_full_area() {
         first.defaults_because,
         Some(LoadError::Settings(SettingsError::Erased))
     );
-    let slots = AREA.slots();
-    assert_eq!(slots, 28);
-    let saves = 3 * slots + 5;
+    assert_eq!(PER, 12);
+    let saves = 4 * PER + 5;
     for n in 0..saves {
         let s = settings(n);
         let saved = save(&mut f, AREA, &s).expect("save");
-        assert_eq!(saved.slot, n % slots);
-        assert_eq!(saved.erased, n >= slots && n % slots == 0, "save {n}");
+        // Sector 0, then sector 1 (erased already), then back to sector 0 (erased first).
+        let slot = (n / PER % 2) * PER + n % PER;
+        assert_eq!(saved.slot, slot, "save {n}");
+        assert_eq!(saved.erased, n >= 2 * PER && n % PER == 0, "save {n}");
         let l = load(&mut f, AREA);
-        assert_eq!((l.settings, l.slot, l.torn), (s, Some(n % slots), 0));
+        assert_eq!((l.settings, l.slot, l.torn), (s, Some(slot), 0));
     }
-    assert_eq!(f.erases as u32, saves / slots);
+    assert_eq!(f.erases, 3);
     // The same settings again: nothing written.
     let ops = f.ops;
     let again = save(&mut f, AREA, &settings(saves - 1)).expect("save");
     assert!(again.unchanged);
     assert_eq!(f.ops, ops);
-    // The bytes outside the area are untouched.
+    // The bytes outside the store are untouched.
     assert!(
         mem[..ERASE]
             .iter()
@@ -250,8 +262,9 @@ fn cut_everywhere(prefill: u32, may_default: bool, seed: u64) -> (usize, usize, 
         } else {
             panic!("cut at {cut} of {total}: loaded {got:?}");
         }
-        // Saves after the reboot: each is the one that loads (none of the leftovers).
-        for n in 2000..2000 + AREA.slots() + 2 {
+        // Saves after the reboot, through two sector switches: each is the one that loads
+        // (none of the leftovers).
+        for n in 2000..2000 + 2 * PER + 2 {
             save(&mut f, AREA, &settings(n)).expect("save after the reboot");
             assert_eq!(
                 load(&mut f, AREA).settings,
@@ -266,26 +279,70 @@ fn cut_everywhere(prefill: u32, may_default: bool, seed: u64) -> (usize, usize, 
 #[test]
 fn a_cut_while_programming_keeps_the_old_settings() {
     for seed in 0..4 {
-        // First save on an erased area, and a save into a half-used area.
-        let (old, new, def) = cut_everywhere(0, true, seed);
-        // Without a save before, "old" is the defaults: every cut but the last loads them.
-        assert_eq!((old, new, def), (SETTINGS_LEN, 1, 0), "seed {seed}");
-        let (old, new, def) = cut_everywhere(5, false, seed);
-        assert_eq!((old, new, def), (SETTINGS_LEN, 1, 0), "seed {seed}");
+        // First save on an erased store: "old" is the defaults; every cut but the last
+        // loads them.
+        assert_eq!(
+            cut_everywhere(0, true, seed),
+            (SLOT_LEN, 1, 0),
+            "seed {seed}"
+        );
+        // A save into a half-used sector, and the first save into the second (erased)
+        // sector.
+        for prefill in [5, PER] {
+            assert_eq!(
+                cut_everywhere(prefill, false, seed),
+                (SLOT_LEN, 1, 0),
+                "seed {seed}"
+            );
+        }
     }
 }
 
 #[test]
-fn a_cut_in_the_erase_of_a_full_area_gives_old_settings_or_defaults_never_garbage() {
+fn a_cut_in_an_erase_keeps_the_last_save_and_never_brings_back_an_older_one() {
     for seed in 0..4 {
-        // The area is full: the save erases (64 steps), then programs (144 bytes).
-        let (old, new, def) = cut_everywhere(AREA.slots(), true, seed);
-        assert_eq!(new, 1);
-        assert_eq!(old + new + def, 2 * ERASE / ERASE_STEP + SETTINGS_LEN + 1);
-        // The emulated erase runs in address order: while the first slot is not wholly
-        // erased, the scan passes it and still finds the newest old block; from then on
-        // the scan stops at the first slot, and the defaults load.
-        assert_eq!(old, SETTINGS_LEN.div_ceil(ERASE_STEP), "seed {seed}");
+        // The active sector is full and the other holds older saves: the save erases the
+        // other (32 steps) and programs its first slot. Every cut in the erase, between
+        // the erase and the program, or in the program loads the last save; the older
+        // blocks the cut erase leaves are never taken (and the defaults never load).
+        for prefill in [2 * PER, 3 * PER] {
+            let (old, new, def) = cut_everywhere(prefill, false, seed);
+            assert_eq!(
+                (old, new, def),
+                (ERASE / ERASE_STEP + SLOT_LEN, 1, 0),
+                "seed {seed}"
+            );
+        }
+    }
+}
+
+#[test]
+fn random_cuts_through_many_switches_never_lose_or_rewind() {
+    for seed in 0..6u64 {
+        let mut rng = SmallRng::seed_from_u64(seed);
+        let mut mem = erased();
+        let mut last = Settings::DEFAULT;
+        let mut cuts = 0;
+        for n in 0..10 * PER {
+            let new = settings(n);
+            let budget = rng
+                .random_bool(0.3)
+                .then(|| rng.random_range(0..ERASE / ERASE_STEP + SLOT_LEN));
+            let r = save(
+                &mut SimFlash::new(&mut mem, budget, seed ^ u64::from(n)),
+                AREA,
+                &new,
+            );
+            let got = load(&mut SimFlash::new(&mut mem, None, seed), AREA).settings;
+            if r.is_ok() {
+                assert_eq!(got, new, "seed {seed}, save {n}");
+            } else {
+                cuts += 1;
+                assert!(got == last || got == new, "seed {seed}, save {n}: {got:?}");
+            }
+            last = got;
+        }
+        assert!(cuts > PER, "seed {seed}: {cuts} cuts");
     }
 }
 
@@ -319,7 +376,7 @@ fn a_slot_that_does_not_read_back_is_skipped() {
     let mut mem = erased();
     let mut f = SimFlash::new(&mut mem, None, 4);
     // A weak cell inside the first slot's CRC.
-    f.weak.push(ERASE + SETTINGS_LEN - 2);
+    f.weak.push(ERASE + SLOT_LEN - 10);
     let s = save(&mut f, AREA, &settings(7)).expect("save");
     assert_eq!((s.slot, s.skipped), (1, 1));
     let l = load(&mut f, AREA);
@@ -330,25 +387,23 @@ fn a_slot_that_does_not_read_back_is_skipped() {
 fn a_bad_area_is_refused_and_load_falls_back() {
     let mut mem = erased();
     let mut f = SimFlash::new(&mut mem, None, 5);
-    for area in [
-        Area {
-            offset: 100,
-            len: ERASE as u32,
-        },
-        Area {
-            offset: 0,
-            len: 100,
-        },
-        Area {
-            offset: 3 * ERASE as u32,
-            len: 2 * ERASE as u32,
-        },
+    let unit = |offset: u32, len: u32| Area { offset, len };
+    let e = ERASE as u32;
+    for sectors in [
+        [unit(100, e), unit(2 * e, e)],
+        [unit(0, 100), unit(2 * e, e)],
+        [unit(e, e), unit(3 * e, 2 * e)],
+        [unit(e, 2 * e), unit(2 * e, e)],
+        [unit(e, e), unit(2 * e, 2 * e)],
     ] {
-        assert_eq!(save(&mut f, area, &settings(1)), Err(StoreError::Layout));
+        assert_eq!(
+            save(&mut f, Areas { sectors }, &settings(1)),
+            Err(StoreError::Layout),
+            "{sectors:?}"
+        );
     }
-    let beyond = Area {
-        offset: FLASH_LEN as u32,
-        len: ERASE as u32,
+    let beyond = Areas {
+        sectors: [unit(e, e), unit(FLASH_LEN as u32, e)],
     };
     let l = load(&mut f, beyond);
     assert_eq!(
@@ -372,7 +427,7 @@ fn random_garbage_in_the_area_never_loads_as_settings() {
     for _ in 0..200 {
         let mut mem = erased();
         // Random bytes over a random part of the area (an erase cut short, noise).
-        let n = rng.random_range(1..AREA.len as usize);
+        let n = rng.random_range(1..2 * ERASE);
         for b in &mut mem[ERASE..ERASE + n] {
             *b = rng.random();
         }
@@ -385,12 +440,24 @@ fn random_garbage_in_the_area_never_loads_as_settings() {
 }
 
 #[test]
-fn the_board_area_is_sector_11() {
-    assert_eq!(BOARD_AREA.offset, 0xE_0000);
-    assert!(BOARD_AREA.offset.is_multiple_of(128 * 1024));
-    assert_eq!(BOARD_AREA.slots(), 910);
-    // 144-byte blocks stay aligned to the flash's 16-byte rows and 4-byte words.
-    assert!(SETTINGS_LEN.is_multiple_of(16));
+fn the_board_store_is_sectors_10_and_11() {
+    assert_eq!(
+        BOARD_AREA.sectors[0],
+        Area {
+            offset: 0xC_0000,
+            len: 128 * 1024
+        }
+    );
+    assert_eq!(
+        BOARD_AREA.sectors[1],
+        Area {
+            offset: 0xE_0000,
+            len: 128 * 1024
+        }
+    );
+    assert_eq!(BOARD_AREA.sectors[0].slots(), 819);
+    // Slots stay aligned to the flash's 16-byte rows and 4-byte words.
+    assert!(SLOT_LEN.is_multiple_of(16));
 }
 
 #[test]

@@ -54,45 +54,7 @@ mod tests {
     use super::*;
     use crate::board::menu::{MenuEvent, Press};
     use crate::board::settings::Settings;
-    extern crate std;
-
-    /// A 128×64 frame buffer.
-    #[derive(PartialEq)]
-    struct Frame([[bool; 128]; 64]);
-
-    impl Frame {
-        fn new() -> Self {
-            Frame([[false; 128]; 64])
-        }
-        fn lit(&self) -> usize {
-            self.0.iter().flatten().filter(|&&p| p).count()
-        }
-    }
-
-    impl OriginDimensions for Frame {
-        fn size(&self) -> Size {
-            Size::new(128, 64)
-        }
-    }
-
-    impl DrawTarget for Frame {
-        type Color = BinaryColor;
-        type Error = core::convert::Infallible;
-        fn draw_iter<I: IntoIterator<Item = Pixel<BinaryColor>>>(
-            &mut self,
-            px: I,
-        ) -> Result<(), Self::Error> {
-            for Pixel(p, c) in px {
-                if let (Ok(x), Ok(y)) = (usize::try_from(p.x), usize::try_from(p.y))
-                    && x < 128
-                    && y < 64
-                {
-                    self.0[y][x] = c.is_on();
-                }
-            }
-            Ok(())
-        }
-    }
+    use crate::display::{Frame, lit};
 
     fn frame(view: &View, sd: Option<&str>) -> Frame {
         let mut f = Frame::new();
@@ -141,7 +103,7 @@ mod tests {
         // The search screen carries the SD mark; the menu does not.
         let plain = frame(&search, None);
         let marked = frame(&search, Some("NO SD"));
-        assert!(marked.lit() > plain.lit());
+        assert!(lit(&marked).count() > lit(&plain).count());
         assert!(frame(&with_menu, Some("NO SD")) == frame(&with_menu, None));
     }
 }
