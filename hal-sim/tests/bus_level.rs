@@ -7,11 +7,10 @@
 use firmware::board::board_log::withheld_why;
 use firmware::drivers::imu::{ACC_LSB_M_S2, GYR_LSB_RAD_S, MAG_LSB_UT};
 use firmware::frontend::PulseMeasurement;
-use hal_sim::io::replay::{StreamOptions, replay_stream};
+use hal_sim::io::replay::replay_clean;
 use hal_sim::io::session::Record;
 use hal_sim::sensors::bus::run::{BusRun, compare_pulses, simulate_bus_default};
 use hal_sim::world::scenario::{Preset, ScenarioConfig};
-use std::io::Cursor;
 
 fn config(preset: Preset, seed: u64, victims: usize, max_s: f64) -> ScenarioConfig {
     let mut c = ScenarioConfig::new(preset, seed);
@@ -317,21 +316,7 @@ fn check_written_log(run: &BusRun, text: &str) {
         }
     }
 
-    let mut out = Vec::new();
-    let mut warnings = Vec::new();
-    let summary = replay_stream(
-        Cursor::new(text.as_bytes()),
-        &run.sim.receiver,
-        &mut out,
-        StreamOptions {
-            strict: true,
-            live: false,
-        },
-        |w| warnings.push(w.to_string()),
-        |_| {},
-    )
-    .unwrap();
-    assert!(warnings.is_empty(), "{warnings:?}");
+    let summary = replay_clean(text.as_bytes(), &run.sim.receiver).unwrap();
     let read = summary.read;
     assert_eq!((read.segments, read.malformed, read.seq_gaps), (1, 0, 0));
     let pulses = run.sim.session.pulses().count() as u64;

@@ -1,13 +1,8 @@
 //! `hal-sim demo` end to end, and the display fields in `replay`'s output.
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
-use std::process::Command;
+mod common;
 
-fn hal_sim(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_hal-sim"))
-        .args(args)
-        .output()
-        .expect("run hal-sim")
-}
+use common::{hal_sim, text};
 
 #[test]
 fn demo_prints_screens_and_writes_pngs() {
@@ -22,14 +17,13 @@ fn demo_prints_screens_and_writes_pngs() {
         "--out",
         dir.to_str().unwrap(),
     ]);
+    assert!(out.status.success(), "{}", text(&out.stderr));
+    let screens = text(&out.stdout);
+    assert!(screens.contains("PROBE HERE"), "{screens}");
     assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+        screens.contains('█') && screens.contains("[flux-line]"),
+        "{screens}"
     );
-    let text = String::from_utf8_lossy(&out.stdout);
-    assert!(text.contains("PROBE HERE"), "{text}");
-    assert!(text.contains('█') && text.contains("[flux-line]"), "{text}");
     for f in ["demo.png", "display.png"] {
         let bytes = std::fs::read(dir.join(f)).unwrap();
         assert!(bytes.starts_with(b"\x89PNG"), "{f}");
@@ -42,7 +36,7 @@ fn demo_prints_screens_and_writes_pngs() {
         "--out",
         dir.to_str().unwrap(),
     ]);
-    let q = String::from_utf8_lossy(&quiet.stdout);
+    let q = text(&quiet.stdout);
     assert!(
         quiet.status.success() && !q.contains('█') && q.contains("seed 2"),
         "{q}"
@@ -54,11 +48,7 @@ fn replay_reports_the_display_status() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("s");
     let out = hal_sim(&["simulate", "--seed", "3", "--out", dir.to_str().unwrap()]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert!(out.status.success(), "{}", text(&out.stderr));
     let log = dir.join("session.jsonl");
     let rec = dir.join("receiver.json");
     let out = hal_sim(&[
@@ -69,7 +59,7 @@ fn replay_reports_the_display_status() {
     ]);
     assert!(out.status.success());
     let mut statuses = std::collections::BTreeSet::new();
-    for line in String::from_utf8_lossy(&out.stdout).lines() {
+    for line in text(&out.stdout).lines() {
         let v: hal_sim::io::replay::ReplayLine = serde_json::from_str(line).unwrap();
         let s = v.status.expect("status on every line");
         assert!(["searching", "flux-line", "localized", "probe"].contains(&s.as_str()));

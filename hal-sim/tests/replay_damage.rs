@@ -6,10 +6,12 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 mod common;
 
-use common::{NEES_3SIGMA, final_nees, hal_sim, is_pulse, joined, simulated, t_of, text};
+use common::{
+    NEES_3SIGMA, final_nees, hal_sim, hal_sim_piped, is_pulse, joined, simulate_paper, simulated,
+    t_of, text,
+};
 use std::io::{BufRead, BufReader, Write};
 use std::path::Path;
-use std::process::{Command, Stdio};
 
 /// Replays `log` (bytes) with the simulation's receiver.json: (stdout lines, stderr, ok).
 fn replay(dir: &Path, name: &str, log: &[u8], extra: &[&str]) -> (Vec<String>, String, bool) {
@@ -123,12 +125,7 @@ fn damaged_logs_replay_every_intact_pulse() {
 fn a_closed_pipe_ends_quietly() {
     let tmp = tempfile::tempdir().unwrap();
     let (dir, _) = simulated(tmp.path());
-    let mut child = Command::new(env!("CARGO_BIN_EXE_hal-sim"))
-        .args(["replay", dir.join("session.jsonl").to_str().unwrap()])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut child = hal_sim_piped(&["replay", dir.join("session.jsonl").to_str().unwrap()]);
     let mut first = String::new();
     BufReader::new(child.stdout.take().unwrap())
         .read_line(&mut first)
@@ -145,18 +142,12 @@ fn a_closed_pipe_ends_quietly() {
 fn live_mode_answers_each_pulse_as_it_arrives() {
     let tmp = tempfile::tempdir().unwrap();
     let (dir, lines) = simulated(tmp.path());
-    let mut child = Command::new(env!("CARGO_BIN_EXE_hal-sim"))
-        .args([
-            "replay",
-            "-",
-            "--receiver",
-            dir.join("receiver.json").to_str().unwrap(),
-        ])
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut child = hal_sim_piped(&[
+        "replay",
+        "-",
+        "--receiver",
+        dir.join("receiver.json").to_str().unwrap(),
+    ]);
     let mut stdin = child.stdin.take().unwrap();
     let mut stdout = BufReader::new(child.stdout.take().unwrap());
     let mut answered = 0;
@@ -184,19 +175,7 @@ fn live_mode_answers_each_pulse_as_it_arrives() {
 fn a_bus_level_log_is_written_in_the_boards_order_and_replays() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("bus");
-    let out = hal_sim(&[
-        "simulate",
-        "--preset",
-        "paper",
-        "--seed",
-        "3",
-        "--max-duration-s",
-        "80",
-        "--bus",
-        "--out",
-        dir.to_str().unwrap(),
-    ]);
-    assert!(out.status.success(), "{}", text(&out.stderr));
+    simulate_paper(&dir, "3", "80", &["--bus"]);
     let log = std::fs::read_to_string(dir.join("session.jsonl")).unwrap();
     let lines: Vec<&str> = log.lines().collect();
     // Every record numbered in file order.
@@ -241,18 +220,7 @@ fn a_bus_level_log_is_written_in_the_boards_order_and_replays() {
 fn without_a_magnetometer_the_display_is_never_localized() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("sim");
-    let out = hal_sim(&[
-        "simulate",
-        "--preset",
-        "paper",
-        "--seed",
-        "3",
-        "--max-duration-s",
-        "120",
-        "--out",
-        dir.to_str().unwrap(),
-    ]);
-    assert!(out.status.success(), "{}", text(&out.stderr));
+    simulate_paper(&dir, "3", "120", &[]);
     let log = std::fs::read_to_string(dir.join("session.jsonl")).unwrap();
     let truth = std::fs::read_to_string(dir.join("truth.jsonl")).unwrap();
     let status = |lines: &[String], s: &str| {

@@ -14,10 +14,9 @@ use firmware::board::log_item::LogItem;
 use firmware::board::sd_log::{RamCard, SdSink};
 use firmware::frontend::{PulseMeasurement, Range, RangeChange, RangeReason};
 use hal_sim::io::receiver_config::ReceiverConfig;
-use hal_sim::io::replay::{StreamOptions, replay_stream};
+use hal_sim::io::replay::replay_clean;
 use hal_sim::io::session::Record;
 use hal_sim::world::scenario::{Preset, ScenarioConfig, simulate};
-use std::io::Cursor;
 
 fn v(a: &[f64; 3]) -> Vec3 {
     Vec3::new(a[0] as f32, a[1] as f32, a[2] as f32)
@@ -127,21 +126,7 @@ fn a_board_log_with_gain_calibration_and_rebuild_events_replays_strictly() {
     let text = log.uart().cloned().unwrap();
     assert!(text.contains(r#""kind":"gain","why":"strong","range":"high","pga":64,"from_range":"high","from_pga":128,"applied":true"#));
 
-    let mut out = Vec::new();
-    let mut warnings = Vec::new();
-    let summary = replay_stream(
-        Cursor::new(text.as_bytes()),
-        &ReceiverConfig::default(),
-        &mut out,
-        StreamOptions {
-            strict: true,
-            live: false,
-        },
-        |w| warnings.push(w.to_string()),
-        |_| {},
-    )
-    .unwrap();
-    assert!(warnings.is_empty(), "{warnings:?}");
+    let summary = replay_clean(text.as_bytes(), &ReceiverConfig::default()).unwrap();
     let read = summary.read;
     assert_eq!((read.segments, read.malformed, read.seq_gaps), (2, 0, 0));
     assert_eq!((read.pulses, read.events), (pulses, events));

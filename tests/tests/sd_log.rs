@@ -11,7 +11,7 @@ use firmware::Vec3;
 use firmware::board::sd_log::{FixedTime, RamCard, SdLog};
 use firmware::session_log::Recorder;
 use hal_sim::io::receiver_config::ReceiverConfig;
-use hal_sim::io::replay::{StreamOptions, replay_stream};
+use hal_sim::io::replay::replay_clean;
 use hal_sim::io::session::Record;
 use hal_sim::world::scenario::{Preset, ScenarioConfig, simulate};
 use std::io::Cursor;
@@ -104,21 +104,7 @@ fn power_cut_loses_at_most_the_last_second_and_the_log_replays() {
 
     let text = remount_and_read(&mut img, "SESS0001.LOG");
     assert!(text.ends_with(b"\n"), "torn last line");
-    let mut out = Vec::new();
-    let mut warnings = Vec::new();
-    let summary = replay_stream(
-        Cursor::new(&text),
-        &ReceiverConfig::default(),
-        &mut out,
-        StreamOptions {
-            strict: true,
-            live: false,
-        },
-        |w| warnings.push(w.to_string()),
-        |_| {},
-    )
-    .unwrap();
-    assert!(warnings.is_empty(), "{warnings:?}");
+    let summary = replay_clean(&text, &ReceiverConfig::default()).unwrap();
     let read = summary.read;
     assert_eq!((read.segments, read.malformed, read.seq_gaps), (1, 0, 0));
     let kept = (read.imu + read.pulses) as usize;

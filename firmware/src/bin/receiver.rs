@@ -21,7 +21,7 @@
 //! | fault LED (the Feather's red LED): lit while a sensor fault holds or the display is down | GPIO | PC1 (D13) |
 //! | buzzer (passive piezo): guidance tones ([`firmware::board::sound`]) | TIM4 CH3 PWM | PB8 (D9) |
 //! | sound button (push button to ground, internal pull-up; debounced): short = mute / unmute (a chirp confirms "on"), long = the menu ([`firmware::board::controls`]) | GPIO | PC2 (D12) |
-//! | settings (append-only slots, [`firmware::board::settings_store`]), written by the idle loop when the menu closes with a change | flash sector 11 | – |
+//! | settings (two sectors used in turn, [`firmware::board::settings_store`]), written by the idle loop when the menu closes with a change | flash sectors 10, 11 | – |
 //! | battery voltage (the Feather's ½ divider on BAT, read once a second) | ADC1 IN3 | PA3 (on board) |
 //! | supervision: independent watchdog (1 s), cycle counter (progress times) | IWDG, DWT | – |
 //!
@@ -37,7 +37,9 @@
 //! boot logs the record and shows it on the display for 3 s. The I2C bus is cleared at
 //! boot (a slave may still hold SDA from a transfer the reset cut), checked before every
 //! transfer and cleared and its devices re-initialised when stuck
-//! ([`firmware::board::i2c_bus`]). A dead or failing ADC, a stuck bus or a failing IMU
+//! ([`firmware::board::i2c_bus`]); every wait of a transfer is bounded (1 ms,
+//! [`firmware::board::i2c_master`]), so a slave holding SCL mid-transfer is an error
+//! and a bus clear, not a watchdog reset. A dead or failing ADC, a stuck bus or a failing IMU
 //! shows on the display as a fault over the status word (never as "NO SIGNAL") and is
 //! logged; the battery gauge and the low-battery warning sit in the bottom-left corner
 //! ([`firmware::board::health`]). SPI transfers are clocked by the MCU (master) and

@@ -113,6 +113,10 @@ pub enum Error {
     /// A read of zero bytes was asked for (the bus cannot end a read without a byte).
     #[error("I2C read of zero bytes")]
     EmptyRead,
+    /// The owner has no peripheral in place (before boot set it up, or its pins were
+    /// lost in a bus clear).
+    #[error("I2C bus not in place")]
+    Unavailable,
 }
 
 /// What a NACK answered.
@@ -134,6 +138,7 @@ impl i2c::Error for Error {
             Error::ArbitrationLoss => ErrorKind::ArbitrationLoss,
             Error::Overrun => ErrorKind::Overrun,
             Error::EmptyRead => ErrorKind::Other,
+            Error::Unavailable => ErrorKind::Bus,
         }
     }
 }

@@ -370,6 +370,7 @@ fn draw_map(o: &Outcome, area: &DrawingArea<BitMapBackend<'_>, Shift>) -> Result
         .map_err(plot::err)?
         .label(format!("victim ({:.1} m deep)", -o.victim[2]))
         .legend(|(x, y)| Cross::new((x + 10, y), 6, RED.stroke_width(3)));
+    plot::scale_bar(&mut chart)?;
     plot::draw_legend(&mut chart)
 }
 
@@ -380,13 +381,13 @@ fn draw_errors(o: &Outcome, area: &DrawingArea<BitMapBackend<'_>, Shift>) -> Res
         .margin(10)
         .x_label_area_size(40)
         .y_label_area_size(60)
-        .build_cartesian_2d(0.0..t_max, (0.01f64..200.0).log_scale())
+        .build_cartesian_2d(0.0..t_max, plot::log_axis(0.01, 200.0))
         .map_err(plot::err)?;
     plot::draw_axes(
         &mut chart,
-        ("time since the start (s)", "metres"),
+        ("time since the start (s)", "distance, error (m, log scale)"),
         &|v| format!("{v:.0}"),
-        &|v| format!("{v}"),
+        &|v| plot::tick(*v),
     )?;
     let grey = RGBColor(120, 120, 120);
     chart

@@ -636,10 +636,7 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
     if args.budget {
         flags.push_str(" --budget");
     }
-    let command = format!(
-        "cargo run -p hal-sim --release -- accuracy --tries {}{flags}",
-        args.tries
-    );
+    let command = format!("cargo sim accuracy --tries {}{flags}", args.tries);
     let mut report = format!(
         "## SOGs accuracy (`{command}`)\n\nMotion noise fed to the filter in every case but `Imu` (true displacement plus errors, to isolate the estimator; `Imu` runs the firmware's own attitude filter and PDR on the simulated IMU): {}\n\n",
         serde_json::to_string(&noise)?

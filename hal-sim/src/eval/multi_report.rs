@@ -39,7 +39,7 @@ pub fn report(args: &Args, out: &mut dyn std::io::Write) -> anyhow::Result<()> {
         return trace(spec);
     }
     let command = format!(
-        "cargo run -p hal-sim --release -- multi-report --tries {}{}",
+        "cargo sim multi-report --tries {}{}",
         args.tries,
         crate::eval::sidecar::first_seed_flag(args.first_seed)
     );

@@ -1,6 +1,7 @@
 //! What every figure shares: a real font (DejaVu Sans, embedded, so a fresh machine needs no
 //! font stack) for plotters' axes, ticks, captions and legends, and the error conversion.
 use anyhow::Context as _;
+use plotters::coord::combinators::WithKeyPoints;
 use plotters::coord::ranged1d::ValueFormatter;
 use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
@@ -55,6 +56,41 @@ where
         .bold_line_style(RGBColor(215, 215, 215))
         .draw()
         .map_err(err)
+}
+
+/// A tick label: integers plainly, small values with their significant digits, below a
+/// thousandth as a power of ten.
+pub fn tick(v: f64) -> String {
+    if v.abs() >= 1.0 || v == 0.0 {
+        format!("{}", (v * 100.0).round() / 100.0)
+    } else if v.abs() < 1e-3 {
+        format!("1e{}", v.abs().log10().round())
+    } else {
+        let digits = (-v.abs().log10()).ceil() as usize + 1;
+        let s = format!("{v:.digits$}");
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    }
+}
+
+/// Every power of ten from `lo` to `hi`: a log axis' labelled ticks (plotters' own choice
+/// skips decades), and the 2…9 multiples between them for its light grid lines.
+pub fn decades(lo: f64, hi: f64) -> (Vec<f64>, Vec<f64>) {
+    let (a, b) = (lo.log10().ceil() as i32, hi.log10().floor() as i32);
+    let bold: Vec<f64> = (a..=b).map(|e| 10f64.powi(e)).collect();
+    let light = (a - 1..=b)
+        .flat_map(|e| (2..10).map(move |m| f64::from(m) * 10f64.powi(e)))
+        .filter(|v| (lo..=hi).contains(v))
+        .collect();
+    (bold, light)
+}
+
+/// A log axis from `lo` to `hi` with a labelled tick at every decade ([`decades`]).
+pub fn log_axis(lo: f64, hi: f64) -> WithKeyPoints<LogCoord<f64>> {
+    let (bold, light) = decades(lo, hi);
+    (lo..hi)
+        .log_scale()
+        .with_key_points(bold)
+        .with_light_points(light)
 }
 
 /// A map's chart: metres east and north on equal scales.
@@ -130,6 +166,44 @@ pub fn map_chart<'a, 'b>(
     Ok(chart)
 }
 
+/// The scale bar's length for a map `width_m` wide: the largest 1, 2 or 5 × 10ⁿ m not
+/// longer than a fifth of it.
+pub fn scale_length(width_m: f64) -> f64 {
+    let target = (width_m / 5.0).max(1e-9);
+    let decade = 10f64.powf(target.log10().floor());
+    [5.0, 2.0, 1.0]
+        .into_iter()
+        .map(|m| m * decade)
+        .find(|l| *l <= target)
+        .unwrap_or(decade)
+}
+
+/// Draws a map's scale bar in its lower left corner: [`scale_length`] metres with end
+/// ticks, labelled above.
+pub fn scale_bar(chart: &mut MapChart<'_, '_>) -> anyhow::Result<()> {
+    let (xr, yr) = (chart.x_range(), chart.y_range());
+    let width = xr.end - xr.start;
+    let len = scale_length(width);
+    let (x0, y0) = (
+        xr.start + 0.04 * width,
+        yr.start + 0.04 * (yr.end - yr.start),
+    );
+    let style = BLACK.stroke_width(3);
+    chart
+        .draw_series(std::iter::once(PathElement::new(
+            [(x0, y0), (x0 + len, y0)],
+            style,
+        )))
+        .map_err(err)?;
+    let tick = |x: f64| EmptyElement::at((x, y0)) + PathElement::new([(0, -6), (0, 6)], style);
+    chart.draw_series([tick(x0), tick(x0 + len)]).map_err(err)?;
+    let label = Text::new(format!("{len} m"), (0, -26), (FONT, 15).into_font());
+    chart
+        .draw_series(std::iter::once(EmptyElement::at((x0, y0)) + label))
+        .map_err(err)?;
+    Ok(())
+}
+
 /// Writes an 8-bit RGB buffer of `w` × `h` pixels as a PNG (creating the directory).
 pub fn write_png(path: &Path, w: u32, h: u32, rgb: &[u8]) -> anyhow::Result<()> {
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
@@ -191,5 +265,41 @@ mod tests {
         }
         let inked = buf.chunks(3).filter(|p| p[0] < 128).count();
         assert!(inked > 100, "only {inked} dark pixels: no glyphs drawn");
+    }
+
+    #[test]
+    fn the_scale_bar_is_a_round_fifth_of_the_map_or_less() {
+        for (width, len) in [
+            (120.0, 20.0),
+            (100.0, 20.0),
+            (60.0, 10.0),
+            (30.0, 5.0),
+            (4.0, 0.5),
+        ] {
+            assert_eq!(scale_length(width), len, "{width} m wide");
+        }
+    }
+
+    #[test]
+    fn tick_labels_are_short() {
+        assert_eq!(tick(0.01), "0.01");
+        assert_eq!(tick(0.1), "0.1");
+        assert_eq!(tick(1.0), "1");
+        assert_eq!(tick(100.0), "100");
+        assert_eq!(tick(0.5), "0.5");
+        assert_eq!(tick(0.25), "0.25");
+        assert_eq!(tick(1e-4), "1e-4");
+    }
+
+    #[test]
+    fn a_log_axis_labels_every_decade() {
+        let (bold, light) = decades(0.01, 300.0);
+        assert_eq!(bold.len(), 5);
+        for (b, want) in bold.iter().zip([0.01, 0.1, 1.0, 10.0, 100.0]) {
+            assert!((b / want - 1.0).abs() < 1e-12, "{bold:?}");
+        }
+        // 2…9 × each decade inside the range: 8 × 4 below 100, then 200 and 300.
+        assert_eq!(light.len(), 34, "{light:?}");
+        assert!(light.iter().all(|v| (0.01..=300.0).contains(v)));
     }
 }

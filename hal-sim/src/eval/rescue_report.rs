@@ -569,7 +569,7 @@ pub fn run(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> {
         format!(" --probe-tradeoff {}", radii.join(","))
     };
     let command = format!(
-        "cargo run -p hal-sim --release -- rescue-report --tries {}{}{tradeoff}",
+        "cargo sim rescue-report --tries {}{}{tradeoff}",
         args.tries,
         crate::eval::sidecar::first_seed_flag(args.first_seed),
     );

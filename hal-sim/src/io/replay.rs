@@ -294,6 +294,31 @@ pub fn replay_stream(
     )
 }
 
+/// Replays a whole log held in memory strictly (as `replay --strict`), the check that a
+/// writer's log reads back cleanly: the first malformed line, and any warning (a `seq`
+/// gap, a record too late, an unknown type), is an error. The replay lines are dropped.
+pub fn replay_clean(log: &[u8], receiver: &ReceiverConfig) -> anyhow::Result<ReplaySummary> {
+    let mut warnings = Vec::new();
+    let opts = StreamOptions {
+        strict: true,
+        live: false,
+    };
+    let summary = replay_stream(
+        log,
+        receiver,
+        &mut std::io::sink(),
+        opts,
+        |w| warnings.push(w.to_string()),
+        |_| {},
+    )?;
+    anyhow::ensure!(
+        warnings.is_empty(),
+        "the log replays with warnings: {}",
+        warnings.join("; ")
+    );
+    Ok(summary)
+}
+
 /// Writes one replay line; an output error stays an [`std::io::Error`] (a closed pipe is
 /// recognized by its kind).
 fn write_line(out: &mut impl Write, l: &ReplayLine) -> anyhow::Result<()> {
@@ -428,6 +453,18 @@ mod tests {
             Some("warning: x.jsonl: 3 more warning(s) not shown (5 in all)")
         );
         assert_eq!(WarningCap::new("y", 2).finish(), None);
+    }
+
+    #[test]
+    fn a_clean_replay_refuses_a_log_with_warnings() {
+        let mut log = Vec::new();
+        let header = Header::new(100.0, [20.0, 0.0, -40.0], false);
+        Session::new(header).write(&mut log).unwrap();
+        let summary = replay_clean(&log, &ReceiverConfig::default()).unwrap();
+        assert_eq!((summary.read.segments, summary.lines), (1, 0));
+        log.extend_from_slice(b"{\"type\":\"chirp\",\"t\":0.5}\n");
+        let e = replay_clean(&log, &ReceiverConfig::default()).unwrap_err();
+        assert!(e.to_string().contains("unknown record type"), "{e}");
     }
 
     #[test]

@@ -458,7 +458,7 @@ pub fn report(args: &Args, out: &mut impl std::io::Write) -> anyhow::Result<()> 
         ("SOG", &of(&sog)),
     ];
     let command = format!(
-        "cargo run -p hal-sim --release -- classic-report --tries {}{} --out {}",
+        "cargo sim classic-report --tries {}{} --out {}",
         args.tries,
         crate::eval::sidecar::first_seed_flag(args.first_seed),
         args.out.as_ref().map_or_else(

@@ -49,6 +49,7 @@ pub fn plot(map: &TeamMap, truth: Option<&TruthOverlay>, path: &Path) -> Result<
         if let Some(t) = truth {
             draw_true_victims(t, &mut chart)?;
         }
+        plot::scale_bar(&mut chart)?;
         plot::draw_legend(&mut chart)?;
         root.present().map_err(plot::err)?;
     }
@@ -149,14 +150,21 @@ fn draw_victims(map: &TeamMap, chart: &mut MapChart<'_, '_>) -> Result<()> {
                 .legend(|(x, y)| Circle::new((x + 10, y), 5, RED.stroke_width(2)));
             ring_in_legend = true;
         }
-        let at = EmptyElement::at(en(p));
+        chart
+            .draw_series(std::iter::once(Circle::new(en(p), 4, RED.filled())))
+            .map_err(plot::err)?;
+        // The name just outside the ellipse's upper right corner, clear of the markers
+        // and tracks that meet at the victim.
+        let (right, top) = ellipse(p, c, 36)
+            .iter()
+            .fold((f64::MIN, f64::MIN), |(x, y), q| (x.max(q.0), y.max(q.1)));
         let name = Text::new(
             format!("V{}", v.id),
-            (7, -16),
-            (FONT, 14).into_font().color(&RED),
+            (0, -16),
+            (FONT, 15).into_font().color(&RED),
         );
         chart
-            .draw_series([at + Circle::new((0, 0), 4, RED.filled()) + name])
+            .draw_series(std::iter::once(EmptyElement::at((right, top)) + name))
             .map_err(plot::err)?;
         for s in &v.seen_by {
             let Some(o) = s.own_p else { continue };

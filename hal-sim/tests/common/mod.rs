@@ -3,7 +3,7 @@
 #![allow(dead_code, clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::{Child, Command, Output, Stdio};
 
 /// Runs `hal-sim` with `args`, waits for it.
 pub fn hal_sim(args: &[&str]) -> Output {
@@ -13,15 +13,20 @@ pub fn hal_sim(args: &[&str]) -> Output {
         .unwrap()
 }
 
-/// Runs `hal-sim` with `args` and `input` on its standard input.
-pub fn hal_sim_stdin(args: &[&str], input: &[u8]) -> Output {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_hal-sim"))
+/// Starts `hal-sim` with `args`, its standard input, output and error piped.
+pub fn hal_sim_piped(args: &[&str]) -> Child {
+    Command::new(env!("CARGO_BIN_EXE_hal-sim"))
         .args(args)
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
-        .unwrap();
+        .unwrap()
+}
+
+/// Runs `hal-sim` with `args` and `input` on its standard input.
+pub fn hal_sim_stdin(args: &[&str], input: &[u8]) -> Output {
+    let mut child = hal_sim_piped(args);
     let mut stdin = child.stdin.take().unwrap();
     // The child may stop reading early (an error): a closed pipe is its answer.
     let _ = stdin.write_all(input);
@@ -36,17 +41,25 @@ pub fn text(b: &[u8]) -> String {
 
 /// `hal-sim simulate --preset paper --seed <seed> --max-duration-s 40` into `dir`.
 pub fn simulate_into(dir: &Path, seed: &str) {
-    let out = hal_sim(&[
+    simulate_paper(dir, seed, "40", &[]);
+}
+
+/// `hal-sim simulate --preset paper --seed <seed> --max-duration-s <seconds> <extra…>`
+/// into `dir`.
+pub fn simulate_paper(dir: &Path, seed: &str, seconds: &str, extra: &[&str]) {
+    let mut args = vec![
         "simulate",
         "--preset",
         "paper",
         "--seed",
         seed,
         "--max-duration-s",
-        "40",
+        seconds,
         "--out",
         dir.to_str().unwrap(),
-    ]);
+    ];
+    args.extend_from_slice(extra);
+    let out = hal_sim(&args);
     assert!(out.status.success(), "{}", text(&out.stderr));
 }
 

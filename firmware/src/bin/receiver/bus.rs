@@ -1,14 +1,18 @@
-//! The shared I2C1 bus (IMU, magnetometer, display): I2C1 taken apart for a bus clear and
-//! rebuilt ([`firmware::board::i2c_bus`] guards it), behind the priority-ceiling lock
-//! [`with_bus`], and the drivers' handle on it ([`BusHandle`]).
+//! The shared I2C1 bus (IMU, magnetometer, display): I2C1 driven by the bounded master
+//! ([`firmware::board::i2c_master`]: every flag wait ends after 1 ms), taken apart for a
+//! bus clear and rebuilt ([`firmware::board::i2c_bus`] guards it), behind the
+//! priority-ceiling lock [`with_bus`], and the drivers' handle on it ([`BusHandle`]).
 
 use super::{I2C_HZ, SYSCLK_HZ};
 use core::cell::UnsafeCell;
 use core::mem::MaybeUninit;
 use core::sync::atomic::{AtomicBool, Ordering};
+use cortex_m::peripheral::DWT;
 use embedded_hal::delay::DelayNs;
 use firmware::board::i2c_bus::{self, ClearError, Cleared, Guarded, Recoverable};
+use firmware::board::i2c_master::{self, BOARD_BUDGET_CYCLES, BoundedI2c, Regs};
 use firmware::board::schedule::PRIO_IMU;
+use stm32f4xx_hal::gpio::alt::I2cCommon;
 use stm32f4xx_hal::gpio::{OpenDrain, Output, PB6, PB7};
 use stm32f4xx_hal::i2c::I2c;
 use stm32f4xx_hal::pac;
@@ -42,15 +46,59 @@ pub fn clear_pins(
     i2c_bus::clear_bus(scl, sda, &mut CycleDelay)
 }
 
+/// I2C1's registers and the core's cycle counter, for the bounded master.
+pub struct I2c1Regs(pac::I2C1);
+
+impl Regs for I2c1Regs {
+    fn cr1(&mut self) -> u16 {
+        self.0.cr1().read().bits()
+    }
+    fn set_cr1(&mut self, value: u16) {
+        // SAFETY: every CR1 bit pattern is a valid write (RM0090 §27.6.1).
+        self.0.cr1().write(|w| unsafe { w.bits(value) });
+    }
+    fn sr1(&mut self) -> u16 {
+        self.0.sr1().read().bits()
+    }
+    fn set_sr1(&mut self, value: u16) {
+        // SAFETY: SR1's writable bits are clear-by-writing-0 error flags.
+        self.0.sr1().write(|w| unsafe { w.bits(value) });
+    }
+    fn sr2(&mut self) -> u16 {
+        self.0.sr2().read().bits()
+    }
+    fn dr(&mut self) -> u8 {
+        // DR holds one byte in its low bits.
+        self.0.dr().read().bits() as u8
+    }
+    fn set_dr(&mut self, value: u8) {
+        // SAFETY: any byte is a valid DR write.
+        self.0.dr().write(|w| unsafe { w.bits(u16::from(value)) });
+    }
+    fn now(&mut self) -> u32 {
+        DWT::cycle_count()
+    }
+}
+
+/// I2C1's pins as the peripheral holds them (alternate function).
+type I2cPins = (<pac::I2C1 as I2cCommon>::Scl, <pac::I2C1 as I2cCommon>::Sda);
+
+/// Configures I2C1 with the HAL (clock, reset, CCR, TRISE, enable) and hands its registers
+/// to the bounded master.
+fn bounded(i2c: I2c<pac::I2C1>) -> (BoundedI2c<I2c1Regs>, I2cPins) {
+    let (per, pins) = i2c.release();
+    (BoundedI2c::new(I2c1Regs(per), BOARD_BUDGET_CYCLES), pins)
+}
+
 /// I2C1 that can be taken apart for a bus clear and rebuilt.
 pub struct BoardI2c {
     /// `None` only if a clear could not get the pins back (then every transfer fails).
-    i2c: Option<I2c<pac::I2C1>>,
+    i2c: Option<(BoundedI2c<I2c1Regs>, I2cPins)>,
     rcc: Rcc,
 }
 
 impl embedded_hal::i2c::ErrorType for BoardI2c {
-    type Error = stm32f4xx_hal::i2c::Error;
+    type Error = i2c_master::Error;
 }
 
 impl embedded_hal::i2c::I2c for BoardI2c {
@@ -60,8 +108,8 @@ impl embedded_hal::i2c::I2c for BoardI2c {
         operations: &mut [embedded_hal::i2c::Operation<'_>],
     ) -> Result<(), Self::Error> {
         match self.i2c.as_mut() {
-            Some(i2c) => embedded_hal::i2c::I2c::transaction(i2c, address, operations),
-            None => Err(stm32f4xx_hal::i2c::Error::Bus),
+            Some((i2c, _)) => embedded_hal::i2c::I2c::transaction(i2c, address, operations),
+            None => Err(i2c_master::Error::Unavailable),
         }
     }
 }
@@ -72,10 +120,10 @@ impl Recoverable for BoardI2c {
     }
 
     fn clear_and_reinit(&mut self) -> Result<Cleared, ClearError> {
-        let Some(i2c) = self.i2c.take() else {
+        let Some((i2c, (scl, sda))) = self.i2c.take() else {
             return Err(ClearError::Pin);
         };
-        let (per, (scl, sda)) = i2c.release();
+        let per = i2c.release().0;
         let (Ok(mut scl), Ok(mut sda)) = (
             PB6::<Output<OpenDrain>>::try_from(scl),
             PB7::<Output<OpenDrain>>::try_from(sda),
@@ -83,8 +131,19 @@ impl Recoverable for BoardI2c {
             return Err(ClearError::Pin);
         };
         let r = clear_pins(&mut scl, &mut sda);
-        self.i2c = Some(I2c::new(per, (scl, sda), I2C_HZ.Hz(), &mut self.rcc));
+        // The HAL's constructor resets I2C1 through the RCC: whatever state a hung
+        // transfer left in the peripheral goes with it.
+        self.i2c = Some(bounded(I2c::new(
+            per,
+            (scl, sda),
+            I2C_HZ.Hz(),
+            &mut self.rcc,
+        )));
         r
+    }
+
+    fn needs_clear(&self, error: &i2c_master::Error) -> bool {
+        BoundedI2c::<I2c1Regs>::needs_clear(error)
     }
 }
 
@@ -106,7 +165,7 @@ pub fn install(i2c: I2c<pac::I2C1>, rcc: Rcc) {
     // during init.
     unsafe {
         (*BUS.0.get()).write(Guarded::new(BoardI2c {
-            i2c: Some(i2c),
+            i2c: Some(bounded(i2c)),
             rcc,
         }))
     };
@@ -140,7 +199,7 @@ pub fn with_bus<R>(f: impl FnOnce(&mut Guarded<BoardI2c>) -> R) -> Option<R> {
 pub struct BusHandle;
 
 impl embedded_hal::i2c::ErrorType for BusHandle {
-    type Error = i2c_bus::GuardError<stm32f4xx_hal::i2c::Error>;
+    type Error = i2c_bus::GuardError<i2c_master::Error>;
 }
 
 impl embedded_hal::i2c::I2c for BusHandle {
@@ -150,7 +209,7 @@ impl embedded_hal::i2c::I2c for BusHandle {
         operations: &mut [embedded_hal::i2c::Operation<'_>],
     ) -> Result<(), Self::Error> {
         with_bus(|b| embedded_hal::i2c::I2c::transaction(b, address, operations)).unwrap_or(Err(
-            i2c_bus::GuardError::Bus(stm32f4xx_hal::i2c::Error::Bus),
+            i2c_bus::GuardError::Bus(i2c_master::Error::Unavailable),
         ))
     }
 }

@@ -1,7 +1,8 @@
 //! Line plots of the baselines' reports (PNG) in the figures' common style
 //! ([`crate::eval::plot`]: embedded font, named axes with units, ticks, legend), on linear or
-//! logarithmic axes (errors that span decades are shown on a log axis).
-use crate::eval::plot::{self, FONT, write_png};
+//! logarithmic axes (errors that span decades are shown on a log axis, every decade
+//! labelled); the legend stands in a column beside the chart.
+use crate::eval::plot::{self, FONT, log_axis, tick, write_png};
 use anyhow::Result;
 use plotters::coord::Shift;
 use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
@@ -42,58 +43,70 @@ pub(crate) struct Axis {
     pub title: &'static str,
 }
 
-/// Where the legend goes (the corner the curves leave free).
-#[derive(Debug, Clone, Copy)]
-pub(crate) enum Legend {
-    /// Upper right corner.
-    UpperRight,
-    /// Lower right corner.
-    LowerRight,
+/// Width of the legend column beside the chart: the longest series name, a line sample
+/// and margins.
+fn legend_width(root: &DrawingArea<BitMapBackend<'_>, Shift>, series: &[Series]) -> u32 {
+    let font = (FONT, LEGEND_PX).into_text_style(root);
+    let text = series
+        .iter()
+        .filter_map(|s| root.estimate_text_size(&s.name, &font).ok())
+        .map(|(w, _)| w)
+        .max()
+        .unwrap_or(0);
+    text + 60
 }
 
-/// A tick label: integers plainly, small values with their significant digits.
-fn tick(v: f64) -> String {
-    if v.abs() >= 1.0 || v == 0.0 {
-        format!("{}", (v * 100.0).round() / 100.0)
-    } else {
-        let digits = (-v.abs().log10()).ceil() as usize + 1;
-        let s = format!("{v:.digits$}");
-        s.trim_end_matches('0').trim_end_matches('.').to_string()
-    }
-}
+/// Legend text size, px.
+const LEGEND_PX: u32 = 14;
 
-/// A line plot with a title, named axes with ticks and a legend at `legend`.
-pub(crate) fn plot(
-    path: &Path,
-    title: &str,
-    x: &Axis,
-    y: &Axis,
-    series: &[Series],
-    legend: Legend,
-) -> Result<()> {
+/// A line plot with a title, named axes with ticks (every decade on a log axis) and a
+/// legend in a column of its own to the right, so that it never hides a curve.
+pub(crate) fn plot(path: &Path, title: &str, x: &Axis, y: &Axis, series: &[Series]) -> Result<()> {
     plot::fonts();
-    let (w, h) = (1100u32, 620u32);
+    let (chart_w, h) = (1100u32, 620u32);
+    let w = {
+        let mut probe = vec![255u8; 3];
+        let area = BitMapBackend::with_buffer(&mut probe, (1, 1)).into_drawing_area();
+        chart_w + legend_width(&area, series)
+    };
     let mut buf = vec![255u8; (w * h * 3) as usize];
     {
         let root = BitMapBackend::with_buffer(&mut buf, (w, h)).into_drawing_area();
         root.fill(&WHITE).map_err(plot::err)?;
         let root = root.titled(title, (FONT, 20)).map_err(plot::err)?;
+        let (chart_area, legend_area) = root.split_horizontally(chart_w);
         let (x0, x1, y0, y1) = (x.range.0, x.range.1, y.range.0, y.range.1);
-        let p = Parts {
-            x,
-            y,
-            series,
-            legend,
-        };
+        let p = Parts { x, y, series };
         match (x.log, y.log) {
-            (false, false) => draw(&root, x0..x1, y0..y1, &p)?,
-            (false, true) => draw(&root, x0..x1, (y0..y1).log_scale(), &p)?,
-            (true, false) => draw(&root, (x0..x1).log_scale(), y0..y1, &p)?,
-            (true, true) => draw(&root, (x0..x1).log_scale(), (y0..y1).log_scale(), &p)?,
+            (false, false) => draw(&chart_area, x0..x1, y0..y1, &p)?,
+            (false, true) => draw(&chart_area, x0..x1, log_axis(y0, y1), &p)?,
+            (true, false) => draw(&chart_area, log_axis(x0, x1), y0..y1, &p)?,
+            (true, true) => draw(&chart_area, log_axis(x0, x1), log_axis(y0, y1), &p)?,
         }
+        draw_legend(&legend_area, series)?;
         root.present().map_err(plot::err)?;
     }
     write_png(path, w, h, &buf)
+}
+
+/// The legend: one line sample and name per series, from the top of its column.
+fn draw_legend(area: &DrawingArea<BitMapBackend<'_>, Shift>, series: &[Series]) -> Result<()> {
+    let font = (FONT, LEGEND_PX).into_font();
+    for (i, s) in series.iter().enumerate() {
+        let y = 40 + 24 * i as i32;
+        area.draw(&PathElement::new(
+            [(8, y), (36, y)],
+            s.colour.stroke_width(3),
+        ))
+        .map_err(plot::err)?;
+        area.draw(&Text::new(
+            s.name.as_str(),
+            (44, y - LEGEND_PX as i32 / 2 - 1),
+            font.clone(),
+        ))
+        .map_err(plot::err)?;
+    }
+    Ok(())
 }
 
 /// What [`draw`] draws.
@@ -101,7 +114,6 @@ struct Parts<'a> {
     x: &'a Axis,
     y: &'a Axis,
     series: &'a [Series],
-    legend: Legend,
 }
 
 fn draw<X, Y>(
@@ -133,31 +145,9 @@ where
             .filter(|(a, b)| a.is_finite() && b.is_finite())
             .map(|&(a, b)| (clamp(a, p.x.range), clamp(b, p.y.range)))
             .collect();
-        let c = s.colour;
         chart
-            .draw_series(LineSeries::new(pts, c.stroke_width(2)))
-            .map_err(plot::err)?
-            .label(s.name.as_str())
-            .legend(move |(x, y)| PathElement::new([(x, y), (x + 20, y)], c.stroke_width(3)));
+            .draw_series(LineSeries::new(pts, s.colour.stroke_width(2)))
+            .map_err(plot::err)?;
     }
-    let position = match p.legend {
-        Legend::UpperRight => SeriesLabelPosition::UpperRight,
-        Legend::LowerRight => SeriesLabelPosition::LowerRight,
-    };
-    plot::draw_legend_at(&mut chart, position)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn tick_labels_are_short() {
-        assert_eq!(tick(0.01), "0.01");
-        assert_eq!(tick(0.1), "0.1");
-        assert_eq!(tick(1.0), "1");
-        assert_eq!(tick(100.0), "100");
-        assert_eq!(tick(0.5), "0.5");
-        assert_eq!(tick(0.25), "0.25");
-    }
+    Ok(())
 }

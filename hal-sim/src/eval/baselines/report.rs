@@ -1,6 +1,6 @@
 //! `hal-sim baselines-report`: every [`Method`] on the same seeded scenarios, the papers'
 //! numbers beside ours, error-vs-time and final-error CDF plots (PNG).
-use super::plot::{Axis, COLOURS, Legend, Series, plot};
+use super::plot::{Axis, COLOURS, Series, plot};
 use super::{Method, MethodRuns, run_method};
 use crate::eval::accuracy::stats;
 use anyhow::{Context, Result, bail};
@@ -255,7 +255,6 @@ fn error_vs_time(all: &[MethodRuns], path: &Path) -> Result<()> {
             title: "median 3-D error (m, log scale)",
         },
         &series,
-        Legend::UpperRight,
     )
 }
 
@@ -276,7 +275,6 @@ fn cdf(all: &[MethodRuns], path: &Path) -> Result<()> {
             title: "fraction of runs with a smaller error",
         },
         &series,
-        Legend::LowerRight,
     )
 }
 

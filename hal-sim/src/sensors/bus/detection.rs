@@ -335,6 +335,82 @@ mod tests {
         assert!((1..=12).contains(&alarms), "{alarms}: {:?}", run.stats);
     }
 
+    /// The energy detector's thresholds against their neighbours
+    /// (`docs/decisions/energy-detector-thresholds.md`): per (`k_on`, `k_off`), with the
+    /// shipped DSP (coherent detector on) and the nominal unit, the detections of noise
+    /// alone in 120 s, the share of 20 pulses per level giving a field vector, and on
+    /// strong pulses the edge-estimated duration and the vector error. A measurement, not
+    /// a check: `cargo test --profile sim -p hal-sim --lib detector_threshold_probe --
+    /// --ignored --nocapture`.
+    #[test]
+    #[ignore = "measurement (minutes); prints a table"]
+    fn detector_threshold_probe() {
+        let unit = Unit::nominal(&REFERENCE);
+        let shipped = REFERENCE.frontend_config(&REFERENCE.analog.nominal);
+        println!(
+            "| k_on | k_off | noise: detections / reported in 120 s | field vectors at 12 / 20 / 40 σ_bkg \
+             (of 20) | 400 σ_bkg: fields, duration median (ms), vector error median / max (%) |"
+        );
+        for (k_on, k_off) in [
+            (1.8, 1.3),
+            (1.5, 1.3),
+            (2.2, 1.3),
+            (3.0, 1.3),
+            (1.8, 1.1),
+            (1.8, 1.6),
+        ] {
+            let cfg = FrontendConfig {
+                k_on,
+                k_off,
+                ..shipped
+            };
+            let noise = probe_run(&unit, cfg, SIGMA_BKG, Vec::new(), 120.0, 21).unwrap();
+            let detections = noise.reported.len() as u32 + noise.stats.rejected_short;
+            let fields: Vec<usize> = [12.0, 20.0, 40.0]
+                .iter()
+                .map(|&k| {
+                    let truth = probe_train(20, k * SIGMA_BKG, 22);
+                    let run = probe_run(&unit, cfg, SIGMA_BKG, truth, 22.0, 23).unwrap();
+                    run.detections().iter().filter(|d| d.1).count()
+                })
+                .collect();
+            let truth = probe_train(20, 400.0 * SIGMA_BKG, 24);
+            let run = probe_run(&unit, cfg, SIGMA_BKG, truth.clone(), 22.0, 25).unwrap();
+            let mut durations = Vec::new();
+            let mut errors = Vec::new();
+            for p in &truth {
+                let centre = p.start_s + 0.5 * PULSE_S;
+                let Some(r) = run
+                    .reported
+                    .iter()
+                    .find(|r| (f64::from(r.t_s) - centre).abs() <= MATCH_S)
+                else {
+                    continue;
+                };
+                durations.push(f64::from(r.duration_s) * 1e3);
+                if let Some(h) = r.field() {
+                    let h = V3::new(f64::from(h.x), f64::from(h.y), f64::from(h.z));
+                    let e = (h - p.h).norm().min((h + p.h).norm()) / p.h.norm();
+                    errors.push(100.0 * e);
+                }
+            }
+            durations.sort_by(f64::total_cmp);
+            errors.sort_by(f64::total_cmp);
+            let median = |v: &[f64]| v.get(v.len() / 2).copied().unwrap_or(f64::NAN);
+            println!(
+                "| {k_on} | {k_off} | {detections} / {} | {} / {} / {} | {}, {:.1}, {:.2} / {:.2} |",
+                noise.reported.len(),
+                fields[0],
+                fields[1],
+                fields[2],
+                errors.len(),
+                median(&durations),
+                median(&errors),
+                errors.last().copied().unwrap_or(f64::NAN),
+            );
+        }
+    }
+
     #[test]
     fn limit_matches_the_paper_numbers() {
         // One false alarm per 10 minutes: 9.6e4 cells, threshold 33.0, 90 % at 6.6 σ.
