@@ -43,8 +43,10 @@
 //! shows on the display as a fault over the status word (never as "NO SIGNAL") and is
 //! logged; the battery gauge and the low-battery warning sit in the bottom-left corner
 //! ([`firmware::board::health`]). SPI transfers are clocked by the MCU (master) and
-//! cannot wait on the ADC; a silent ADC shows as failed frames and a DRDY stall
-//! (`firmware::timebase`).
+//! cannot wait on the ADC; every wait is bounded all the same (100 µs,
+//! [`firmware::board::spi_master`]), so a stopped peripheral is a failed frame, not a
+//! hang of the highest-priority task. A silent ADC shows as failed frames and a DRDY
+//! stall (`firmware::timebase`).
 //!
 //! Timing: RTIC 2 tasks by priority (`firmware::board::schedule`, docs/board.md
 //! "Real-time structure", docs/decisions/board-realtime.md): the ADC's DRDY interrupt
@@ -102,6 +104,7 @@ use firmware::board::schedule::{
 use firmware::board::sd_log::SdState;
 use firmware::board::settings::Settings;
 use firmware::board::settings_store::{self, BOARD_AREA};
+use firmware::board::spi_master::{self, BoundedSpi, SpiRegs};
 use firmware::board::view::{self, View};
 use firmware::board::watchdog::{MonotonicMs, ProgressWatch, TickMisses};
 use firmware::board::{self, BoardProfile};
@@ -176,8 +179,31 @@ impl embedded_hal::digital::InputPin for DrdyAsserted {
     }
 }
 
+/// SPI2's status and data registers and the core's cycle counter, for the bounded master.
+pub struct Spi2Regs(pac::SPI2);
+
+impl SpiRegs for Spi2Regs {
+    fn sr(&mut self) -> u16 {
+        self.0.sr().read().bits()
+    }
+    fn dr(&mut self) -> u8 {
+        // 8-bit frames: the byte is DR's low half.
+        self.0.dr().read().bits() as u8
+    }
+    fn set_dr(&mut self, value: u8) {
+        // SAFETY: any byte is a valid DR write in 8-bit frame mode.
+        self.0.dr().write(|w| unsafe { w.bits(u16::from(value)) });
+    }
+    fn rewrite_cr1(&mut self) {
+        self.0.cr1().modify(|_, w| w);
+    }
+    fn now(&mut self) -> u32 {
+        DWT::cycle_count()
+    }
+}
+
 type AdcSpi = ExclusiveDevice<
-    spi::Spi<pac::SPI2>,
+    BoundedSpi<Spi2Regs>,
     stm32f4xx_hal::gpio::PB9<stm32f4xx_hal::gpio::Output>,
     embedded_hal_bus::spi::NoDelay,
 >;
@@ -460,12 +486,19 @@ mod app {
             polarity: spi::Polarity::IdleLow,
             phase: spi::Phase::CaptureOnSecondTransition,
         };
-        let spi_bus = dp.SPI2.spi(
-            (Some(gpiob.pb13), Some(gpiob.pb14), Some(gpiob.pb15)),
-            mode,
-            8.MHz(),
-            &mut rcc,
-        );
+        // The HAL configures SPI2 (clock, mode, software NSS, enable); the bounded master
+        // drives it (every wait ends after 100 µs). The pins stay in their alternate
+        // function: nothing changes them once released.
+        let (spi2, _pins) = dp
+            .SPI2
+            .spi(
+                (Some(gpiob.pb13), Some(gpiob.pb14), Some(gpiob.pb15)),
+                mode,
+                8.MHz(),
+                &mut rcc,
+            )
+            .release();
+        let spi_bus = BoundedSpi::new(Spi2Regs(spi2), spi_master::BOARD_BUDGET_CYCLES);
         let Ok(adc_spi) = ExclusiveDevice::new_no_delay(spi_bus, gpiob.pb9.into_push_pull_output());
         let mut adc = Ads131m04::new(adc_spi, DrdyAsserted);
         let adc_ok = adc.reset(&mut delay).is_ok()

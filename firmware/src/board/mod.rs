@@ -2,7 +2,8 @@
 //! and `hal-sim`'s emulated board both read, its pin map ([`pins`]), and the hardware-free
 //! parts of the board binary's supervision: the progress-checked watchdog feeder
 //! ([`watchdog`]), the crash record kept across a reset ([`crash`]), the guarded and
-//! recoverable I2C bus ([`i2c_bus`]) and its bounded master driver ([`i2c_master`]), the sensor-fault and battery display
+//! recoverable I2C bus ([`i2c_bus`]) and its bounded master driver ([`i2c_master`]), the antenna ADC's bounded SPI master
+//! ([`spi_master`]), the sensor-fault and battery display
 //! ([`health`]), gain ranging applied and logged ([`gain`]), the guidance tones ([`sound`]) and the session log on the microSD card
 //! ([`sd_log`]) with the device events a replay needs ([`board_log`]), the settings stored in flash
 //! ([`settings`], kept safe against power cuts by [`settings_store`]) and the two-button menu that edits them ([`menu`])
@@ -44,6 +45,7 @@ pub mod sd_log;
 pub mod settings;
 pub mod settings_store;
 pub mod sound;
+pub mod spi_master;
 pub mod view;
 pub mod watchdog;
 

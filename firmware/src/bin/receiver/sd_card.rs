@@ -7,10 +7,12 @@
 //!
 //! Blocking: `stm32f4xx-hal` 0.23's SDIO polls its FIFO and then the card's status until
 //! the card is ready; a card's write can keep it busy for up to 250 ms (the SD
-//! specification's write time-out), during which the main loop does not drain the ADC
-//! queue (250 ms deep). The card's power-up loop (ACMD41) has no bound: the boot marks it
-//! in the crash record, so a watchdog reset there is reported and the next boot skips
-//! the card (see `mount`).
+//! specification's write time-out); the idle loop that writes the log is the lowest
+//! priority, so the tasks above it go on. After a failed transfer the sink remounts the
+//! card ([`SdSink`]) over the same driver: no card re-initialisation, so a remount cures
+//! a transfer error of a card that stayed powered, not a card pulled out and put back.
+//! The card's power-up loop (ACMD41) has no bound: the boot marks it in the crash record,
+//! so a watchdog reset there is reported and the next boot skips the card (see `mount`).
 
 use core::cell::RefCell;
 use embedded_sdmmc::{Block, BlockCount, BlockDevice, BlockIdx};
@@ -91,5 +93,11 @@ pub fn mount(mut sdio: Sdio<SdCard>, present: bool, skip: bool, now_ms: u64) -> 
     let card = SdioCard {
         sdio: RefCell::new(sdio),
     };
-    SdSink::new(Some(SdLog::open(card, now_ms).map_err(|(e, _)| e)))
+    match SdLog::open(card, now_ms) {
+        Ok(log) => SdSink::new(Some(Ok(log))),
+        // A card that did not answer a transfer is mounted again from the idle loop (the
+        // sink's remounts); a card without a FAT volume or a free name would not change.
+        Err((SdError::Card, card)) => SdSink::mount_failed(SdError::Card, card, now_ms),
+        Err((e, _)) => SdSink::new(Some(Err(e))),
+    }
 }

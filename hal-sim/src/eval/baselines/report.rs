@@ -330,7 +330,7 @@ fn cdf_series(curves: Vec<(String, Vec<Option<f64>>)>) -> Vec<Series> {
 /// The command that regenerates the report (the header's and the sidecar's).
 pub fn command(args: &Args) -> String {
     let mut c = format!(
-        "nice -n 10 cargo run -p hal-sim --profile sim -- baselines-report --tries {} --first-seed {}",
+        "cargo sim baselines-report --tries {} --first-seed {}",
         args.tries, args.first_seed
     );
     if !args.methods.is_empty() {
