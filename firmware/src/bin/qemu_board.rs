@@ -6,6 +6,11 @@
 //! at once), one screen drawn into a 128×64 buffer (the display model, the health overlay
 //! and the SD mark) and the session-log records (IMU, pulse) formatted with `seq`.
 //!
+//! Stack: each workload runs on a freshly painted stack and `board stack_<name> <bytes>`
+//! gives what it used below `main`'s frame (≤ 256 B below that frame are not painted: a
+//! smaller use reads as up to 256 B); with one task per priority level on the board, the
+//! preempting tasks' stacks add up (docs/board.md, "Stack under preemption").
+//!
 //! Output: `board <name> <worst instructions> <bytes>` lines, then `done`. Run with
 //! `cargo qemu --bin qemu_board`; the numbers feed `firmware::board::schedule::BOARD_COSTS`
 //! (docs/board.md, "Real-time structure").
@@ -195,6 +200,15 @@ struct Sample {
     clipped: bool,
 }
 
+/// Runs `f` on a freshly painted stack; returns what it used below the caller's frame, B.
+fn own_stack<T>(f: impl FnOnce() -> T) -> (T, usize) {
+    let stack_top = 0x2000_0000 + stack::size();
+    let base = stack_top - cortex_m::register::msp::read() as usize;
+    stack::paint();
+    let out = f();
+    (out, stack::high_water().saturating_sub(base))
+}
+
 #[entry]
 fn main() -> ! {
     let mut counter = InstructionCounter::start_on_painted_stack();
@@ -204,30 +218,33 @@ fn main() -> ! {
     let mut adc = Ads131m04::new(FrameSpi::new(), Low);
     let mut queue: Queue<Sample, 64> = Queue::new();
     let mut worst = 0;
-    for _ in 0..REPEATS {
-        let (r, n) = counter.measure(|| {
-            let sample = match adc.read_frame() {
-                Ok(frame) => {
-                    let v = adc.to_volts(&frame);
-                    Sample {
-                        volts: [v[0], v[1], v[2]],
-                        clipped: frame.coils_saturated(),
+    let ((), drdy_stack) = own_stack(|| {
+        for _ in 0..REPEATS {
+            let (r, n) = counter.measure(|| {
+                let sample = match adc.read_frame() {
+                    Ok(frame) => {
+                        let v = adc.to_volts(&frame);
+                        Sample {
+                            volts: [v[0], v[1], v[2]],
+                            clipped: frame.coils_saturated(),
+                        }
                     }
-                }
-                Err(_) => Sample {
-                    volts: [0.0; 3],
-                    clipped: true,
-                },
-            };
-            queue.enqueue(sample).is_ok()
-        });
-        ok &= r;
-        worst = n.max(worst);
-        ok &= queue
-            .dequeue()
-            .is_some_and(|s| !s.clipped && s.volts[0] != 0.0);
-    }
+                    Err(_) => Sample {
+                        volts: [0.0; 3],
+                        clipped: true,
+                    },
+                };
+                queue.enqueue(sample).is_ok()
+            });
+            ok &= r;
+            worst = n.max(worst);
+            ok &= queue
+                .dequeue()
+                .is_some_and(|s| !s.clipped && s.volts[0] != 0.0);
+        }
+    });
     hprintln!("board drdy_isr {} 18", worst);
+    hprintln!("board stack_drdy_isr {}", drdy_stack);
 
     // The IMU tick's driver work (I2C waits excluded).
     match Imu::with_mounting(
@@ -238,12 +255,15 @@ fn main() -> ! {
     ) {
         Ok(mut imu) => {
             let mut worst = 0;
-            for _ in 0..REPEATS {
-                let (r, n) = counter.measure(|| core::hint::black_box(imu.read()));
-                ok &= r.is_ok();
-                worst = n.max(worst);
-            }
+            let ((), imu_stack) = own_stack(|| {
+                for _ in 0..REPEATS {
+                    let (r, n) = counter.measure(|| core::hint::black_box(imu.read()));
+                    ok &= r.is_ok();
+                    worst = n.max(worst);
+                }
+            });
             hprintln!("board imu_read {} 18", worst);
+            hprintln!("board stack_imu_read {}", imu_stack);
         }
         Err(_) => {
             hprintln!("board imu_read failed");
@@ -275,19 +295,22 @@ fn main() -> ! {
     };
     let mut frame = FrameBuf { buf: [0; 1024] };
     let mut worst = 0;
-    for _ in 0..REPEATS {
-        let (r, n) = counter.measure(|| {
-            frame.clear(BinaryColor::Off).is_ok()
-                && firmware::display::draw(&model, &mut frame).is_ok()
-                && health::draw_overlay(Some(Fault::Imu), Some(battery), &mut frame).is_ok()
-                && health::draw_sd_mark(Some("SD ERR"), &mut frame).is_ok()
-        });
-        ok &= r;
-        worst = n.max(worst);
-    }
+    let ((), render_stack) = own_stack(|| {
+        for _ in 0..REPEATS {
+            let (r, n) = counter.measure(|| {
+                frame.clear(BinaryColor::Off).is_ok()
+                    && firmware::display::draw(&model, &mut frame).is_ok()
+                    && health::draw_overlay(Some(Fault::Imu), Some(battery), &mut frame).is_ok()
+                    && health::draw_sd_mark(Some("SD ERR"), &mut frame).is_ok()
+            });
+            ok &= r;
+            worst = n.max(worst);
+        }
+    });
     let lit: u32 = frame.buf.iter().map(|b| b.count_ones()).sum();
     ok &= lit > 100;
     hprintln!("board render {} 1024", worst);
+    hprintln!("board stack_render {}", render_stack);
 
     // Session-log records with seq (times past a day, six-digit values).
     let mut rec = Recorder::new(heapless::String::<512>::new());
@@ -297,15 +320,18 @@ fn main() -> ! {
         Vec3::new(21.234_56, -3.456_78, 42.345_67),
     );
     let (mut worst, mut bytes) = (0, 0);
-    for k in 0..REPEATS {
-        rec.writer().clear();
-        let t = 86_400.0 + f64::from(k) * 0.01 + 0.000_123;
-        let (r, n) = counter.measure(|| rec.imu(t, &acc, &gyr, Some(&mag)));
-        ok &= r.is_ok();
-        worst = n.max(worst);
-        bytes = bytes.max(rec.writer_ref().len());
-    }
+    let ((), log_stack) = own_stack(|| {
+        for k in 0..REPEATS {
+            rec.writer().clear();
+            let t = 86_400.0 + f64::from(k) * 0.01 + 0.000_123;
+            let (r, n) = counter.measure(|| rec.imu(t, &acc, &gyr, Some(&mag)));
+            ok &= r.is_ok();
+            worst = n.max(worst);
+            bytes = bytes.max(rec.writer_ref().len());
+        }
+    });
     hprintln!("board log_imu {} {}", worst, bytes);
+    hprintln!("board stack_log_imu {}", log_stack);
     let h = Vec3::new(1.234_567e-7, -2.345_678e-7, 3.456_789e-8);
     let (mut worst, mut bytes) = (0, 0);
     for k in 0..REPEATS {
