@@ -190,6 +190,7 @@ fn classic_config(cfg: &AppConfig) -> ClassicConfig {
     ClassicConfig {
         sigma_bkg: cfg.sog.sigma_bkg,
         signal_timeout_s: cfg.signal_timeout_s,
+        heading_d2: cfg.guidance.go_to_mean_d2,
         ..ClassicConfig::default()
     }
 }

@@ -32,6 +32,7 @@
 //! outlier gate, IROS eq. 12–14, with that victim's pending motion), so its mixture and
 //! mark carry over; only then does it take a free slot, the slot of a lost victim, or —
 //! list full — the least useful one silent for [`EVICT_SILENT_S`] (marked first).
+//! The three times, measured against their neighbours: `docs/decisions/victim-list-times.md`.
 
 use crate::Vec3;
 use crate::estimate::{

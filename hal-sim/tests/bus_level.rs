@@ -4,10 +4,12 @@
 //! the chips' resolution (both levels share the IMU noise draws).
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
+use firmware::board::board_log::withheld_why;
 use firmware::drivers::imu::{ACC_LSB_M_S2, GYR_LSB_RAD_S, MAG_LSB_UT};
+use firmware::frontend::PulseMeasurement;
 use hal_sim::io::replay::replay_clean;
 use hal_sim::io::session::Record;
-use hal_sim::sensors::bus::run::{compare_pulses, simulate_bus_default};
+use hal_sim::sensors::bus::run::{BusRun, compare_pulses, simulate_bus_default};
 use hal_sim::world::scenario::{Preset, ScenarioConfig};
 
 fn config(preset: Preset, seed: u64, victims: usize, max_s: f64) -> ScenarioConfig {
@@ -235,8 +237,7 @@ fn bus_level_never_reports_a_wrong_vector_under_overlaps() {
 /// Issue 22 item 3: the bus level writes the board's `gain` events. A search that ends
 /// close over a strong transmitter ranges the gain down; every change the DSP asked for
 /// is in the log as the board writes it (`BoardLog::gain`, `seq` in file order among the
-/// records), and the strict streaming replay reads the log with no malformed line, no
-/// `seq` gap and no warning, counts every event and answers every pulse.
+/// records), and the log replays strictly ([`check_written_log`]).
 #[test]
 fn a_bus_level_run_that_ranges_writes_gain_events_that_replay_strictly() {
     // The standard's strongest transmitter, shallow, the search starting 15 m away.
@@ -280,17 +281,31 @@ fn a_bus_level_run_that_ranges_writes_gain_events_that_replay_strictly() {
             .windows(2)
             .all(|w| w[0].change.to == w[1].change.from && w[0].t_us < w[1].t_us)
     );
-    // Numbered in file order; each event written when its setting took effect: after the
-    // IMU samples up to its t, before the later ones.
+    check_written_log(&run, &text);
+}
+
+/// The bus-level log `text` of `run` as the board writes it: numbered in file order; each
+/// `gain` event written when its setting took effect (after the IMU samples up to its
+/// `t`, before the later ones), each `withheld` event when the DSP finished the pulse
+/// (after the IMU samples up to its `t`, within the reader's 2 s window); and the strict
+/// streaming replay reads it with no malformed line, no `seq` gap and no warning, counts
+/// every event and answers every pulse.
+fn check_written_log(run: &BusRun, text: &str) {
+    let lines: Vec<&str> = text.lines().collect();
     let mut imu_before = f64::NEG_INFINITY;
     let mut waiting: Vec<f64> = Vec::new();
     for (k, l) in lines[1..].iter().enumerate() {
         assert!(l.starts_with(&format!("{{\"seq\":{k},\"type\":")), "{l}");
         let v: serde_json::Value = serde_json::from_str(l).unwrap();
         let t = v["t"].as_f64().unwrap();
-        if v["type"] == "event" {
+        if v["type"] == "event" && v["kind"] == "gain" {
             assert!(imu_before <= t, "{l} after the IMU sample of {imu_before}");
             waiting.push(t);
+        } else if v["type"] == "event" && v["kind"] == "withheld" {
+            assert!(
+                t <= imu_before && imu_before - t <= 2.0,
+                "{l} after the IMU sample of {imu_before}"
+            );
         } else if v["type"] == "imu" {
             assert!(
                 waiting.iter().all(|&e| e < t),
@@ -305,6 +320,56 @@ fn a_bus_level_run_that_ranges_writes_gain_events_that_replay_strictly() {
     let read = summary.read;
     assert_eq!((read.segments, read.malformed, read.seq_gaps), (1, 0, 0));
     let pulses = run.sim.session.pulses().count() as u64;
-    assert_eq!((read.pulses, read.events), (pulses, n as u64));
+    let events = (run.gain_events.len() + run.withheld.len()) as u64;
+    assert_eq!((read.pulses, read.events), (pulses, events));
     assert_eq!(summary.lines, pulses);
+}
+
+/// Issue 22 item 3: the bus level writes the board's `withheld` events. Three beacons
+/// whose pulses overlap now and then (the set-up of
+/// `bus_level_never_reports_a_wrong_vector_under_overlaps`, its first seed with an
+/// overlap): every pulse the DSP finished without a vector is in the log as the board
+/// writes it (`BoardLog::pulse`: kind `withheld`, `why` the DSP's reason, `t` the pulse's
+/// centre), and the log replays strictly.
+#[test]
+fn a_bus_level_run_with_overlaps_writes_withheld_events_that_replay_strictly() {
+    let run = (1..=3)
+        .map(|seed| {
+            let mut cfg = config(Preset::Paper, seed, 3, 60.0);
+            cfg.start_distance_m = [12.0, 20.0];
+            simulate_bus_default(&cfg).unwrap()
+        })
+        .find(|r| r.frontend.overlaps >= 1)
+        .expect("a seed overlaps pulses");
+    let text = String::from_utf8(run.sim.session_bytes()).unwrap();
+    let withheld: Vec<serde_json::Value> = text
+        .lines()
+        .filter(|l| l.contains(r#""kind":"withheld""#))
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let f = &run.frontend;
+    println!(
+        "paper, three beacons, 60 s: {} pulses, {} withheld events; DSP {f:?}",
+        run.sim.session.pulses().count(),
+        withheld.len()
+    );
+    for w in &withheld {
+        println!("{w}");
+    }
+    assert_eq!(withheld.len(), run.withheld.len());
+    assert_eq!(
+        withheld.len(),
+        (f.overlaps + f.saturated + f.truncated) as usize
+    );
+    let why = |m: &PulseMeasurement| withheld_why(m).unwrap();
+    for (line, w) in withheld.iter().zip(&run.withheld) {
+        assert_eq!(line["type"], "event");
+        assert_eq!(line["why"], why(&w.m));
+        assert_eq!(line["t"].as_f64().unwrap(), w.t);
+        // Written when finished: after the pulse's end.
+        assert!(w.written_t > w.t, "{w:?}");
+    }
+    let overlaps = withheld.iter().filter(|l| l["why"] == "overlap").count();
+    assert_eq!(overlaps, f.overlaps as usize);
+    check_written_log(&run, &text);
 }

@@ -74,6 +74,21 @@ pub trait Regs {
     fn set_dr(&mut self, value: u8);
     /// A free-running cycle counter (wraps; the board's DWT CYCCNT).
     fn now(&mut self) -> u32;
+    /// Runs `f` with interrupts masked: the errata's critical steps (ES0182 §2.5.x,
+    /// AN2824), a few register accesses each, must end before the byte on the wire does.
+    /// The default masks nothing (the host model).
+    fn critical<T>(&mut self, f: impl FnOnce(&mut Self) -> T) -> T
+    where
+        Self: Sized,
+    {
+        f(self)
+    }
+}
+
+/// CR1 read-modify-write.
+fn modify<R: Regs>(regs: &mut R, set: u16, clear: u16) {
+    let v = regs.cr1();
+    regs.set_cr1((v & !clear) | set);
 }
 
 /// The step of a transfer that a wait belongs to (named in a timeout).
@@ -186,8 +201,7 @@ impl<R: Regs> BoundedI2c<R> {
     }
 
     fn modify_cr1(&mut self, set: u16, clear: u16) {
-        let v = self.regs.cr1();
-        self.regs.set_cr1((v & !clear) | set);
+        modify(&mut self.regs, set, clear);
     }
 
     /// Reads SR1 and turns an error flag into an error (clearing it).
@@ -298,9 +312,12 @@ impl<R: Regs> BoundedI2c<R> {
         match n {
             0 => return Err(Error::EmptyRead),
             1 => {
-                // ACK already clear: the byte is NACKed; STOP/START may follow at once.
-                let _ = self.regs.sr2();
-                self.end_condition(end);
+                // ACK already clear: the byte is NACKed; STOP/START right after ADDR is
+                // cleared, before the byte ends (AN2824 EV6_3).
+                self.regs.critical(|r| {
+                    let _ = r.sr2();
+                    modify(r, end.set, end.clear);
+                });
                 self.wait_sr1(SR1_RXNE, Step::Receive)?;
                 put(ops, 0, self.regs.dr());
             }
@@ -310,8 +327,11 @@ impl<R: Regs> BoundedI2c<R> {
                 self.modify_cr1(0, CR1_ACK);
                 let _ = self.regs.sr2();
                 self.wait_sr1(SR1_BTF, Step::Receive)?;
-                self.end_condition(end);
-                put(ops, 0, self.regs.dr());
+                let first = self.regs.critical(|r| {
+                    modify(r, end.set, end.clear);
+                    r.dr()
+                });
+                put(ops, 0, first);
                 put(ops, 1, self.regs.dr());
             }
             _ => {
@@ -325,10 +345,16 @@ impl<R: Regs> BoundedI2c<R> {
                 // Byte n-2 in DR, n-1 in the shift register, SCL stretched: byte n has
                 // not started, so clearing ACK now NACKs it.
                 self.wait_sr1(SR1_BTF, Step::Receive)?;
-                self.modify_cr1(0, CR1_ACK);
-                put(ops, k, self.regs.dr());
-                self.end_condition(end);
-                put(ops, k + 1, self.regs.dr());
+                // AN2824 EV7_2: ACK off, byte n-2 read (byte n starts), STOP, byte n-1
+                // read, with nothing in between.
+                let (a, b) = self.regs.critical(|r| {
+                    modify(r, 0, CR1_ACK);
+                    let a = r.dr();
+                    modify(r, end.set, end.clear);
+                    (a, r.dr())
+                });
+                put(ops, k, a);
+                put(ops, k + 1, b);
                 self.wait_sr1(SR1_RXNE, Step::Receive)?;
                 put(ops, k + 2, self.regs.dr());
             }

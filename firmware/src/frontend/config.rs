@@ -35,7 +35,8 @@ pub struct FrontendConfig {
     /// pulse, so the window fills inside every legal pulse.
     pub detect_blocks: usize,
     /// A pulse starts when the window's mean energy exceeds this multiple of the noise
-    /// floor. Default 1.8 (≈5.5 standard deviations of the noise-only window mean).
+    /// floor. Default 1.8 (≈5.5 standard deviations of the noise-only window mean;
+    /// with `k_off`: `docs/decisions/energy-detector-thresholds.md`).
     pub k_on: f32,
     /// Blocks of the coherent detector's window ([`coherent`](super::coherent)); 0 turns it
     /// off. Default 32 (64 ms): as long as a power of two can be inside the standard's
@@ -48,7 +49,8 @@ pub struct FrontendConfig {
     /// Required false-alarm rate of the coherent detector (Hz): its threshold is set from
     /// it (`coherent::threshold`). Default one per 10 minutes.
     pub false_alarm_rate_hz: f32,
-    /// A pulse ends when the window's mean energy falls below this multiple of the floor.
+    /// A pulse ends when the window's mean energy falls below this multiple of the floor
+    /// (default 1.3; `docs/decisions/energy-detector-thresholds.md`).
     pub k_off: f32,
     /// Pulses shorter than this (s) are discarded as interference; the standard's
     /// on-time is at least 70 ms.

@@ -29,7 +29,8 @@
 //!   centred on that maximum. The receiver does not measure the hand's motion: it counts
 //!   points, each the move it asked for, and takes a point's reading from the first pulse
 //!   that comes [`ClassicConfig::settle_s`] plus the move at [`ClassicConfig::hand_speed_m_s`]
-//!   after the request (the hand has arrived and is still).
+//!   after the request (the hand has arrived and is still). Shown as "localized" only
+//!   with a heading ([`ClassicConfig::heading_d2`]), else as the flux line.
 //! - **Probe** ([`Instruction::Probe`]): after the last line, the arrow and distance lead
 //!   back to the line's maximum: probe there.
 //!
@@ -59,7 +60,9 @@
 use crate::Vec3;
 use crate::estimate::{Attitude, Pulse};
 use crate::frame::{rotation_from_rpy, wrap_pi};
-use crate::guidance::{Status, flux_direction, relative_arrow, to_degrees_wrapped};
+use crate::guidance::{
+    GuidanceConfig, Status, flux_direction, heading_supports, relative_arrow, to_degrees_wrapped,
+};
 
 /// Pulses averaged for the flip rule (module docs, "Smoothing").
 pub const SMOOTH_PULSES: usize = 3;
@@ -103,6 +106,9 @@ pub struct ClassicConfig {
     pub lower_m: f32,
     /// No pulse for this long: "no signal", s (≈ 3 missed pulses of a 1 s beacon).
     pub signal_timeout_s: f32,
+    /// The SOGs guidance's go-to-mean gate ([`GuidanceConfig::go_to_mean_d2`]): the fine
+    /// search shows "localized" only with a heading that passes [`heading_supports`].
+    pub heading_d2: f32,
 }
 
 impl Default for ClassicConfig {
@@ -121,6 +127,7 @@ impl Default for ClassicConfig {
             hand_speed_m_s: 0.5,
             lower_m: 0.8,
             signal_timeout_s: 3.5,
+            heading_d2: GuidanceConfig::default().go_to_mean_d2,
         }
     }
 }
@@ -141,6 +148,7 @@ impl ClassicConfig {
             self.hand_speed_m_s,
             self.lower_m,
             self.signal_timeout_s,
+            self.heading_d2,
         ]
         .iter()
         .all(|v| v.is_finite() && *v > 0.0)
@@ -267,6 +275,8 @@ pub struct ClassicSearch {
     last_t: Option<f32>,
     pulses: u32,
     out: ClassicOutput,
+    /// The last pulse's yaw variance passed [`heading_supports`].
+    heading: bool,
 }
 
 /// What the classic mode shows; the application turns it into its display model (the
@@ -321,6 +331,7 @@ impl ClassicSearch {
             last_t: None,
             pulses: 0,
             out: ClassicOutput::default(),
+            heading: false,
         }
     }
 
@@ -380,6 +391,7 @@ impl ClassicSearch {
         }
         self.last_t = Some(pulse.t);
         self.pulses = self.pulses.saturating_add(1);
+        self.heading = heading_supports(attitude.cov[(2, 2)], self.cfg.heading_d2);
         let yaw = attitude.rpy.z;
         let before = self.phase;
         let request = self.out.request;
@@ -410,7 +422,10 @@ impl ClassicSearch {
             Instruction::FollowFlux | Instruction::TurnAround | Instruction::ReturnToPeak => {
                 Status::FluxLine
             }
-            Instruction::LowerToSnow | Instruction::Move => Status::Localized,
+            // The bracketing lines are fixed in `G`: without a heading (no magnetometer)
+            // the receiver does not claim to know where the victim is (issue 22's rule).
+            Instruction::LowerToSnow | Instruction::Move if self.heading => Status::Localized,
+            Instruction::LowerToSnow | Instruction::Move => Status::FluxLine,
             Instruction::Probe => Status::Probe,
         };
         let arrow = (status != Status::NoSignal)

@@ -43,6 +43,9 @@
 //!   Near the victim the belief's σ levels off at ≈ 0.1 m (the dead reckoning of the
 //!   stop-and-go walk), above the fixed `probe_radius / 3`: waiting for the fixed bound
 //!   cost most rescues the whole timeout without sharpening the estimate.
+//!   Without a heading (see [`heading_supports`]) nothing is walked to, but "probe here"
+//!   still shows on the strict rule, without an arrow: the distance to the mean and its
+//!   σ do not depend on the heading.
 //! - [`Status::NoSignal`]: no usable pulse.
 //! - Height prompts ([`HeightPrompt`], beyond the papers): localized within
 //!   [`GuidanceConfig::lower_within_m`] of the mean, a receiver tracked above
@@ -473,11 +476,15 @@ impl Guidance {
                 self.far_pulses = 0;
                 self.bracket_dir = None;
             }
+            if !self.localized && !heading && !self.probing {
+                self.probe_without_heading(e);
+            }
         }
         let height = input.height_m.filter(|h| h.is_finite());
         out.height_prompt = self.height_prompt(est.as_ref(), height, walked, input.lower_allowed);
         match (&est, self.localized) {
             (Some(e), true) => self.walk_to_mean(e, yaw, height, &mut out),
+            (Some(e), false) if self.probing => self.probe_here(e, height, &mut out),
             _ => {
                 if let Some(b) = flux {
                     out.status = Status::FluxLine;
@@ -591,6 +598,38 @@ impl Guidance {
         m[(1, 0)] = b;
         m[(1, 1)] = d;
         Some(horizontal_axis(&m).0)
+    }
+
+    /// Without a heading: "probe here" on the strict rule alone (within reach of the mean,
+    /// `3σ_h ≤ probe_radius` on [`GuidanceConfig::probe_confirm_pulses`] pulses). Both
+    /// are yaw-free: a heading error turns the belief about the receiver, which changes
+    /// neither the horizontal distance to its mean nor its σ. The plateau and timeout
+    /// rules count pulses of the bracketing, which needs a heading, so they do not apply.
+    fn probe_without_heading(&mut self, e: &VictimEstimate) {
+        let c = &self.cfg;
+        let (_, sigma_h) = horizontal_axis(&e.cov);
+        let dist_h = libm::sqrtf(e.p.x * e.p.x + e.p.y * e.p.y);
+        let over = dist_h <= c.probe_reach_m.max(sigma_h);
+        let sure = 3.0 * sigma_h <= c.probe_radius_m;
+        self.probe_count = if over && sure {
+            self.probe_count.saturating_add(1)
+        } else {
+            0
+        };
+        self.probing = self.probe_count >= c.probe_confirm_pulses;
+    }
+
+    /// Probing without a heading: the distances, no arrow (no direction is supported; the
+    /// mean is within the probe's reach).
+    fn probe_here(&self, e: &VictimEstimate, height: Option<f32>, out: &mut GuidanceOutput) {
+        let c = &self.cfg;
+        let dist_h = libm::sqrtf(e.p.x * e.p.x + e.p.y * e.p.y);
+        out.status = Status::Probe;
+        out.distance_m = Some(e.p.norm());
+        out.horizontal_m = Some(dist_h);
+        let h = height.unwrap_or(c.receiver_height_m).max(0.0);
+        out.depth_m = Some((-e.p.z - h).max(0.0));
+        out.walk_m = Some(0.0);
     }
 
     /// Localized: walk to the mean, bracket it, or probe.

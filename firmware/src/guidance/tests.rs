@@ -531,6 +531,54 @@ fn without_a_heading_the_belief_is_not_walked_to() {
     assert_eq!(g.update(&unknown(over)).status, Status::Probe);
 }
 
+#[test]
+fn without_a_heading_probe_here_shows_on_the_strict_rule() {
+    let cfg = GuidanceConfig::default();
+    let h = Vec3::new(1e-4, 0.0, 0.0);
+    let unknown = |e: VictimEstimate, yaw: f32| GuidanceInput {
+        yaw_var: PI * PI,
+        ..input(h, 0.0, yaw, Some(e))
+    };
+    // Over a concentrated belief, whatever the (unknown) yaw: the flux line on the first
+    // pulse, "probe here" once confirmed, with distances but no arrow.
+    let over = est(Vec3::new(0.2, -0.1, -1.8), 0.1);
+    for yaw in [0.0, 2.0, -2.9] {
+        let mut g = Guidance::new(cfg);
+        for _ in 1..cfg.probe_confirm_pulses {
+            assert_eq!(g.update(&unknown(over, yaw)).status, Status::FluxLine);
+        }
+        let o = g.update(&unknown(over, yaw));
+        assert_eq!(o.status, Status::Probe);
+        assert!(o.bearing.is_none() && o.arrow.is_none() && !g.is_localized());
+        assert_eq!(o.walk_m, Some(0.0));
+        assert!(
+            o.horizontal_m
+                .is_some_and(|d| (d - 0.05f32.sqrt()).abs() < 1e-5)
+        );
+        assert!(o.depth_m.is_some_and(|d| (d - 0.8).abs() < 1e-5));
+        // Latched, like any probe.
+        let away = est(Vec3::new(5.0, 0.0, -1.8), 0.1);
+        assert_eq!(g.update(&unknown(away, yaw)).status, Status::Probe);
+    }
+    // Not over it, not concentrated, or not confirmed: the flux line.
+    for (e, why) in [
+        (est(Vec3::new(0.8, 0.0, -1.8), 0.1), "beyond reach"),
+        (
+            est(Vec3::new(0.1, 0.0, -1.8), 0.2),
+            "3σ beyond the probe radius",
+        ),
+    ] {
+        let mut g = Guidance::new(cfg);
+        for _ in 0..5 {
+            assert_eq!(g.update(&unknown(e, 0.0)).status, Status::FluxLine, "{why}");
+        }
+    }
+    let mut g = Guidance::new(cfg);
+    let _ = g.update(&unknown(over, 0.0));
+    let _ = g.update(&unknown(est(Vec3::new(0.8, 0.0, -1.8), 0.1), 0.0));
+    assert_eq!(g.update(&unknown(over, 0.0)).status, Status::FluxLine);
+}
+
 fn at_height(e: VictimEstimate, height: Option<f32>) -> GuidanceInput {
     GuidanceInput {
         height_m: height,

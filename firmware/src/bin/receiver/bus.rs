@@ -78,6 +78,10 @@ impl Regs for I2c1Regs {
     fn now(&mut self) -> u32 {
         DWT::cycle_count()
     }
+    fn critical<T>(&mut self, f: impl FnOnce(&mut Self) -> T) -> T {
+        // A few register accesses (< 1 µs): the DRDY interrupt waits that long at most.
+        cortex_m::interrupt::free(|_| f(self))
+    }
 }
 
 /// I2C1's pins as the peripheral holds them (alternate function).

@@ -179,6 +179,40 @@ fn fine_search_finds_the_maximum_of_the_field() {
 }
 
 #[test]
+fn without_a_heading_the_fine_search_is_not_localized() {
+    // The same hand path twice: the yaw known to 3° (a magnetometer), and not at all.
+    let rpy = Rpy::new(0.0, 0.0, 0.6);
+    let no_heading = Attitude::with_sigmas(rpy, 0.01, core::f32::consts::PI);
+    let (mut with, mut without) = (search(), search());
+    let m = [0.01, 0.0, 0.0];
+    let (mut x, mut y) = (1.1, -0.8);
+    let mut fine = 0;
+    for k in 0..200 {
+        let p = pulse(dipole([x, y, 1.5], m), &rpy, k as f32, 1.0);
+        let before = with.phase;
+        let o = with.on_pulse(&p, &att(rpy), 0.0).unwrap();
+        // The search itself needs no heading: the same requests either way.
+        assert_eq!(without.on_pulse(&p, &no_heading, 0.0).unwrap(), o);
+        let (a, b) = (with.display(k as f32, 0.6), without.display(k as f32, 0.6));
+        assert_eq!((a.arrow_deg, a.walk_m), (b.arrow_deg, b.walk_m));
+        if matches!(o.instruction, Instruction::LowerToSnow | Instruction::Move) {
+            fine += 1;
+            assert_eq!(a.status, Status::Localized, "pulse {k}");
+            assert_eq!(b.status, Status::FluxLine, "pulse {k}");
+        }
+        if with.phase != before && matches!(o.instruction, Instruction::Move | Instruction::Probe) {
+            let (b, w) = (f64::from(o.bearing.unwrap()), f64::from(o.walk_m.unwrap()));
+            (x, y) = (x + w * b.cos(), y + w * b.sin());
+        }
+        if o.instruction == Instruction::Probe {
+            assert!(fine > 5, "{fine} fine-search pulses");
+            return;
+        }
+    }
+    panic!("no probe within 200 pulses");
+}
+
+#[test]
 fn pulses_during_the_move_are_not_readings() {
     let mut s = search();
     let rpy = Rpy::zeros();

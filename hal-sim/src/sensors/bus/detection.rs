@@ -338,7 +338,7 @@ mod tests {
     /// The energy detector's thresholds against their neighbours
     /// (`docs/decisions/energy-detector-thresholds.md`): per (`k_on`, `k_off`), with the
     /// shipped DSP (coherent detector on) and the nominal unit, the detections of noise
-    /// alone in 120 s, the share of 20 pulses per level giving a field vector, and on
+    /// alone in 600 s, the share of 60 pulses per level giving a field vector, and on
     /// strong pulses the edge-estimated duration and the vector error. A measurement, not
     /// a check: `cargo test --profile sim -p hal-sim --lib detector_threshold_probe --
     /// --ignored --nocapture`.
@@ -348,8 +348,8 @@ mod tests {
         let unit = Unit::nominal(&REFERENCE);
         let shipped = REFERENCE.frontend_config(&REFERENCE.analog.nominal);
         println!(
-            "| k_on | k_off | noise: detections / reported in 120 s | field vectors at 12 / 20 / 40 σ_bkg \
-             (of 20) | 400 σ_bkg: fields, duration median (ms), vector error median / max (%) |"
+            "| k_on | k_off | noise: detections / reported in 600 s | field vectors at 12 / 20 / 40 σ_bkg \
+             (of 60) | 400 σ_bkg: fields, duration median (ms), vector error median / max (%) |"
         );
         for (k_on, k_off) in [
             (1.8, 1.3),
@@ -358,19 +358,20 @@ mod tests {
             (3.0, 1.3),
             (1.8, 1.1),
             (1.8, 1.6),
+            (1.8, 1.45),
         ] {
             let cfg = FrontendConfig {
                 k_on,
                 k_off,
                 ..shipped
             };
-            let noise = probe_run(&unit, cfg, SIGMA_BKG, Vec::new(), 120.0, 21).unwrap();
+            let noise = probe_run(&unit, cfg, SIGMA_BKG, Vec::new(), 600.0, 21).unwrap();
             let detections = noise.reported.len() as u32 + noise.stats.rejected_short;
             let fields: Vec<usize> = [12.0, 20.0, 40.0]
                 .iter()
                 .map(|&k| {
-                    let truth = probe_train(20, k * SIGMA_BKG, 22);
-                    let run = probe_run(&unit, cfg, SIGMA_BKG, truth, 22.0, 23).unwrap();
+                    let truth = probe_train(60, k * SIGMA_BKG, 22);
+                    let run = probe_run(&unit, cfg, SIGMA_BKG, truth, 62.0, 23).unwrap();
                     run.detections().iter().filter(|d| d.1).count()
                 })
                 .collect();

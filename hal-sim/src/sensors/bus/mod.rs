@@ -14,6 +14,7 @@
 //! - [`bench`]: the antenna's bench calibration on an emulated unit.
 //! - [`detection`]: false alarms and detection of weak pulses against the matched-filter
 //!   limit (`sensing-report`'s detection section).
+//! - [`mag_cal`]: the magnetometer's rotation-in-place calibration on an emulated unit.
 //! - [`run`]: `simulate --bus` — the whole chain into a session log, and the comparison
 //!   of its pulses with the measurement level's.
 //!
@@ -24,6 +25,7 @@ pub mod bench;
 pub mod detection;
 pub mod if_signal;
 pub mod imu;
+pub mod mag_cal;
 pub mod near;
 pub mod run;
 pub mod unit;

@@ -11,6 +11,9 @@
 //!   DSP's transmitter tracker when the world has several transmitters. The DSP reports
 //!   each vector with its largest component positive, so the log is always
 //!   sign-ambiguous;
+//! - `event` of kind `withheld`: a pulse the DSP finished without a vector (overlapped,
+//!   saturated or truncated), written by the board's [`BoardLog::pulse`] when the DSP
+//!   finished it, like the pulses;
 //! - `event` of kind `gain`: each change of the analog setting the DSP asked for, applied
 //!   by the board's [`firmware::board::gain::apply_change`] and written by the board's
 //!   [`BoardLog::gain`] (the same text as on the card), among the records by its `t`.
@@ -28,7 +31,7 @@ use firmware::board::REFERENCE;
 use firmware::board::board_log::BoardLog;
 use firmware::board::gain::GainEvent;
 use firmware::board::sd_log::{RamCard, SdSink};
-use firmware::frontend::{Calibration, FrontendStats, RangeChange};
+use firmware::frontend::{Calibration, FrontendStats, PulseMeasurement, RangeChange};
 use firmware::timebase::Instant;
 
 /// Seed stream of the measurement-level IMU noise (see `scenario::simulate`).
@@ -87,11 +90,26 @@ pub struct BusRun {
     pub range_changes: Vec<RangeChange>,
     /// The same changes as the board applied and logged them.
     pub gain_events: Vec<GainEvent>,
+    /// Pulses the DSP finished without a vector, in order: what it measured instead.
+    pub withheld: Vec<Withheld>,
     /// I2C transactions with the IMU chips.
     pub i2c_transactions: u64,
 }
 
 use crate::world::scenario::stream;
+
+/// A pulse the DSP finished without a field vector.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Withheld {
+    /// The pulse's centre (the record's `t`), s.
+    pub t: f64,
+    /// When the DSP finished it (the board writes it then), s.
+    pub written_t: f64,
+    /// Why there is no vector (`Overlap`, `Saturated` or `Truncated`).
+    pub m: PulseMeasurement,
+    /// The DSP's track.
+    pub src: Option<u8>,
+}
 
 /// Runs the scenario of `cfg` through the emulated chips of `unit` and the firmware's
 /// drivers and DSP, the DSP holding the calibration `cal` (what the unit knows of itself).
@@ -137,17 +155,26 @@ pub fn simulate_bus(cfg: &ScenarioConfig, unit: &Unit, cal: &Calibration) -> Res
     let mut pulses = Vec::new();
     // When the front end finished each pulse (the board writes it then).
     let mut written_t = Vec::new();
+    let mut withheld = Vec::new();
     for k in 0..=n_imu {
         let t = k as f64 / hz;
         clock.set(t);
         antenna
             .drain(|p| {
+                let t_pulse = quantize(f64::from(p.t_s), 1e4);
                 if let Some(h) = p.field() {
                     written_t.push(t);
                     pulses.push(Pulse {
-                        t: quantize(f64::from(p.t_s), 1e4),
+                        t: t_pulse,
                         h: [0, 1, 2].map(|i| round_significant(f64::from(h[i]), 5)),
                         src: if several { p.src.map(u32::from) } else { None },
+                    });
+                } else {
+                    withheld.push(Withheld {
+                        t: t_pulse,
+                        written_t: t,
+                        m: p.measurement,
+                        src: p.src,
                     });
                 }
             })
@@ -178,7 +205,7 @@ pub fn simulate_bus(cfg: &ScenarioConfig, unit: &Unit, cal: &Calibration) -> Res
     sim.session = Session::new(header.clone());
     sim.session.records = merge(imu_records, pulses);
     sim.pulse_written_t = Some(written_t);
-    sim.device_events = gain_lines(&gain_events)?;
+    sim.device_events = device_lines(&gain_events, &withheld)?;
     sim.truth = Session::new(header);
     sim.truth.records = truth;
     sim.receiver.sign_ambiguous = true;
@@ -189,40 +216,56 @@ pub fn simulate_bus(cfg: &ScenarioConfig, unit: &Unit, cal: &Calibration) -> Res
         adc_samples,
         range_changes,
         gain_events,
+        withheld,
         i2c_transactions,
     })
 }
 
-/// The `gain` event records of `events` as the board writes them ([`BoardLog::gain`]),
-/// each with its `t` (s) and without its `seq` (the session log numbers every record in
-/// file order, `seq` first: [`crate::io::session::write_as_written`]); the rest of the
-/// line is the board's text.
-fn gain_lines(events: &[GainEvent]) -> Result<Vec<(f64, String)>> {
+/// The device's event records as the board writes them: `gain` ([`BoardLog::gain`]) at
+/// the change's `t`, `withheld` ([`BoardLog::pulse`]) when the DSP finished the pulse.
+/// Each comes with the time it is written (s, in order) and without its `seq` (the
+/// session log numbers every record in file order, `seq` first:
+/// [`crate::io::session::write_as_written`]); the rest of the line is the board's text.
+fn device_lines(gains: &[GainEvent], withheld: &[Withheld]) -> Result<Vec<(f64, String)>> {
+    enum Item<'a> {
+        Gain(&'a GainEvent),
+        Withheld(&'a Withheld),
+    }
+    let mut items: Vec<(f64, Item)> = gains
+        .iter()
+        .map(|e| (Instant::from_micros(e.t_us).secs_f64(), Item::Gain(e)))
+        .chain(withheld.iter().map(|w| (w.written_t, Item::Withheld(w))))
+        .collect();
+    // Stable: a gain change and a pulse finished on the same tick keep the DSP's order.
+    items.sort_by(|a, b| a.0.total_cmp(&b.0));
     // No card: the UART stream alone carries the records.
     let mut log: BoardLog<RamCard<'static>, String> =
         BoardLog::new(SdSink::new(None), Some(String::new()));
-    for e in events {
-        log.gain(e);
+    for (_, item) in &items {
+        match item {
+            Item::Gain(e) => log.gain(e),
+            Item::Withheld(w) => log.pulse(w.t, &w.m, w.src),
+        }
     }
     let text = log.uart().cloned().unwrap_or_default();
     let lines: Vec<&str> = text.lines().collect();
-    if lines.len() != events.len() {
+    if lines.len() != items.len() {
         return Err(anyhow!(
-            "the board's log wrote {} lines for {} gain events",
+            "the board's log wrote {} lines for {} events",
             lines.len(),
-            events.len()
+            items.len()
         ));
     }
     lines
         .iter()
-        .zip(events)
+        .zip(&items)
         .enumerate()
-        .map(|(k, (l, e))| {
+        .map(|(k, (l, (at, _)))| {
             // The board's writer puts `seq` last.
             let rest = l
                 .strip_suffix(&format!(",\"seq\":{k}}}"))
-                .ok_or_else(|| anyhow!("gain event line without seq {k}: {l}"))?;
-            Ok((Instant::from_micros(e.t_us).secs_f64(), format!("{rest}}}")))
+                .ok_or_else(|| anyhow!("event line without seq {k}: {l}"))?;
+            Ok((*at, format!("{rest}}}")))
         })
         .collect()
 }
