@@ -109,6 +109,14 @@ impl SensorHealth {
         self.imu_fail_run = 0;
     }
 
+    /// Whether an IMU is up at this tick: a change counts as [`Self::imu_up`]; no change
+    /// keeps the run of failed reads counting.
+    pub fn imu_present(&mut self, up: bool) {
+        if up == self.imu_down {
+            self.imu_up(up);
+        }
+    }
+
     /// One IMU read succeeded or failed.
     pub fn imu_read(&mut self, ok: bool) {
         self.imu_fail_run = if ok {

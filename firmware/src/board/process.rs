@@ -328,7 +328,7 @@ impl Process<'_> {
             );
             self.bus_stats = stats;
         }
-        self.sensors.imu_up(record.reading.is_some());
+        self.sensors.imu_present(record.reading.is_some());
         let now_fault = self.sensors.fault();
         if now_fault != self.fault {
             match now_fault {

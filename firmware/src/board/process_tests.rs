@@ -316,3 +316,27 @@ fn a_mode_chosen_in_the_menu_rebuilds_the_receiver_and_goes_to_be_stored() {
     // No tone plays without a signal.
     assert!(hw.tones.iter().all(Option::is_none));
 }
+
+#[test]
+fn a_run_of_failed_imu_reads_shows_an_imu_fault() {
+    let counters = Counters::new();
+    counters.screen_ok.store(true, Ordering::Relaxed);
+    let (mut log_q, mut save_q) = (Queue::<LogItem, 512>::new(), Queue::<Settings, 4>::new());
+    let ((log_in, mut log_out), (saves_in, _)) = (log_q.split(), save_q.split());
+    let (mut fe, mut rx) = parts();
+    let mut p = process(&counters, log_in, saves_in, &mut fe, &mut rx);
+    let mut hw = Fake::default();
+    for _ in 0..crate::board::health::IMU_FAIL_RUN {
+        assert!(!hw.led);
+        period(&mut p, &mut hw, Some(Err(())));
+    }
+    // The health is judged at the start of a tick, before its reading: shown at the next.
+    period(&mut p, &mut hw, Some(Err(())));
+    assert!(hw.led);
+    assert_eq!(p.fault, Some(Fault::Imu));
+    assert!(events(&mut log_out).contains(&("fault", Some("IMU FAULT"), None)));
+    // Good reads clear it (seen at the tick after the first).
+    period(&mut p, &mut hw, Some(Ok(reading())));
+    period(&mut p, &mut hw, Some(Ok(reading())));
+    assert_eq!(p.fault, None);
+}
