@@ -57,12 +57,12 @@ pub const BOARD_COSTS: Costs = Costs {
     // BMI160 burst (addr, reg, addr, 12 B) + LSM303AGR (addr, reg, addr, 6 B): 24 bytes
     // × 9 bit + start/stop ≈ 220 bit at 400 kHz = 550 µs, + 2 µs per byte of HAL loop.
     imu_bus_ns: 550_000 + 24 * 2_000,
-    // budget.md: the DSP's 0.5 s window (4 000 samples) 790 k → 198 per sample, on top
+    // budget.md: the DSP's 0.5 s window (4 000 samples) 832 k → 208 per sample, on top
     // of the pulse's worst single sample below (its analysis counted twice).
-    sample_instr: 198,
-    // budget.md: worst end-of-pulse sample 291 k + worst estimator step 7 198 077
+    sample_instr: 208,
+    // budget.md: worst end-of-pulse sample 301 k + worst estimator step 7 177 727
     // (240 components; the board's victims hold 80).
-    pulse_instr: 291_000 + 7_198_077,
+    pulse_instr: 301_000 + 7_177_727,
     // qemu_soak's worst IMU step 27 333 + 2 000 for the buttons, the tone, the health
     // checks and the record's copy into the log queue.
     imu_step_instr: 27_333 + 2_000,
