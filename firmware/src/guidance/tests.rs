@@ -2,6 +2,7 @@
 
 use super::*;
 use crate::Mat3;
+use crate::frame::wrap_pi;
 use core::f32::consts::{FRAC_PI_2, PI};
 
 fn est(p: Vec3, sigma: f32) -> VictimEstimate {
