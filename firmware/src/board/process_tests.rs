@@ -156,14 +156,22 @@ fn events(log: &mut Consumer<LogItem>) -> Vec<(&'static str, Option<&'static str
         .collect()
 }
 
+/// The processing task on a fresh fake board (screen up): its counters, the log and
+/// settings queues' consumer ends (patterns), and the task `p`.
+macro_rules! rig {
+    ($counters:ident, $log_out:pat, $saves_out:pat, $p:ident) => {
+        let $counters = Counters::new();
+        $counters.screen_ok.store(true, Ordering::Relaxed);
+        let (mut log_q, mut save_q) = (Queue::<LogItem, 512>::new(), Queue::<Settings, 4>::new());
+        let ((log_in, $log_out), (saves_in, $saves_out)) = (log_q.split(), save_q.split());
+        let (mut fe, mut rx) = parts();
+        let mut $p = process(&$counters, log_in, saves_in, &mut fe, &mut rx);
+    };
+}
+
 #[test]
 fn readings_are_logged_calibrated_and_the_screen_is_redrawn_once_a_second() {
-    let counters = Counters::new();
-    counters.screen_ok.store(true, Ordering::Relaxed);
-    let (mut log_q, mut save_q) = (Queue::<LogItem, 512>::new(), Queue::<Settings, 4>::new());
-    let ((log_in, mut log_out), (saves_in, _)) = (log_q.split(), save_q.split());
-    let (mut fe, mut rx) = parts();
-    let mut p = process(&counters, log_in, saves_in, &mut fe, &mut rx);
+    rig!(counters, mut log_out, _, p);
     let cal = MagCalibration {
         hard_iron: Vec3::new(1.0, 2.0, 3.0),
         ..MagCalibration::identity()
@@ -198,12 +206,7 @@ fn readings_are_logged_calibrated_and_the_screen_is_redrawn_once_a_second() {
 
 #[test]
 fn a_silent_adc_is_re_armed_shown_as_a_fault_and_logged() {
-    let counters = Counters::new();
-    counters.screen_ok.store(true, Ordering::Relaxed);
-    let (mut log_q, mut save_q) = (Queue::<LogItem, 512>::new(), Queue::<Settings, 4>::new());
-    let ((log_in, mut log_out), (saves_in, _)) = (log_q.split(), save_q.split());
-    let (mut fe, mut rx) = parts();
-    let mut p = process(&counters, log_in, saves_in, &mut fe, &mut rx);
+    rig!(counters, mut log_out, _, p);
     let mut hw = Fake::default();
     for _ in 0..200 {
         hw.now_ms += 10;
@@ -226,12 +229,7 @@ fn a_silent_adc_is_re_armed_shown_as_a_fault_and_logged() {
 
 #[test]
 fn overruns_are_logged_once_per_growth_and_flash_losses_move_the_clock() {
-    let counters = Counters::new();
-    counters.screen_ok.store(true, Ordering::Relaxed);
-    let (mut log_q, mut save_q) = (Queue::<LogItem, 512>::new(), Queue::<Settings, 4>::new());
-    let ((log_in, mut log_out), (saves_in, _)) = (log_q.split(), save_q.split());
-    let (mut fe, mut rx) = parts();
-    let mut p = process(&counters, log_in, saves_in, &mut fe, &mut rx);
+    rig!(counters, mut log_out, _, p);
     let mut hw = Fake::default();
     period(&mut p, &mut hw, Some(Ok(reading())));
     let before = p.clock.now().micros();
@@ -254,12 +252,7 @@ fn overruns_are_logged_once_per_growth_and_flash_losses_move_the_clock() {
 
 #[test]
 fn imu_read_failures_are_logged_and_a_stuck_bus_shows() {
-    let counters = Counters::new();
-    counters.screen_ok.store(true, Ordering::Relaxed);
-    let (mut log_q, mut save_q) = (Queue::<LogItem, 512>::new(), Queue::<Settings, 4>::new());
-    let ((log_in, mut log_out), (saves_in, _)) = (log_q.split(), save_q.split());
-    let (mut fe, mut rx) = parts();
-    let mut p = process(&counters, log_in, saves_in, &mut fe, &mut rx);
+    rig!(counters, mut log_out, _, p);
     let mut hw = Fake::default();
     period(&mut p, &mut hw, Some(Err(())));
     hw.stuck = true;
@@ -277,12 +270,7 @@ fn imu_read_failures_are_logged_and_a_stuck_bus_shows() {
 
 #[test]
 fn a_mode_chosen_in_the_menu_rebuilds_the_receiver_and_goes_to_be_stored() {
-    let counters = Counters::new();
-    counters.screen_ok.store(true, Ordering::Relaxed);
-    let (mut log_q, mut save_q) = (Queue::<LogItem, 512>::new(), Queue::<Settings, 4>::new());
-    let ((log_in, mut log_out), (saves_in, mut saves_out)) = (log_q.split(), save_q.split());
-    let (mut fe, mut rx) = parts();
-    let mut p = process(&counters, log_in, saves_in, &mut fe, &mut rx);
+    rig!(counters, mut log_out, mut saves_out, p);
     let mut hw = Fake::default();
     // Sound button: long (menu), short (next item: MODE), long (CLASSIC); then mark: leave.
     for held in [100, 20, 100] {
@@ -319,12 +307,7 @@ fn a_mode_chosen_in_the_menu_rebuilds_the_receiver_and_goes_to_be_stored() {
 
 #[test]
 fn a_run_of_failed_imu_reads_shows_an_imu_fault() {
-    let counters = Counters::new();
-    counters.screen_ok.store(true, Ordering::Relaxed);
-    let (mut log_q, mut save_q) = (Queue::<LogItem, 512>::new(), Queue::<Settings, 4>::new());
-    let ((log_in, mut log_out), (saves_in, _)) = (log_q.split(), save_q.split());
-    let (mut fe, mut rx) = parts();
-    let mut p = process(&counters, log_in, saves_in, &mut fe, &mut rx);
+    rig!(counters, mut log_out, _, p);
     let mut hw = Fake::default();
     for _ in 0..crate::board::health::IMU_FAIL_RUN {
         assert!(!hw.led);
